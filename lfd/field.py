@@ -1,0 +1,102 @@
+"""The velocity-field interface shared by every learner.
+
+A field is dx/dt = f(x). Internally a torch module computes the normalised field
+f_n(x_n) (see ``lfd.normalization``); in user units f(x) = s f_n((x - goal) / s).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+import torch
+from torchdiffeq import odeint
+
+from lfd.normalization import Normalization
+
+
+class VelocityField:
+    """A learned autonomous velocity field x -> dx/dt.
+
+    module : torch.nn.Module mapping normalised x_n, shape (B, d), to dx_n/dt, shape (B, d)
+    norm : Normalization between user units and the unit box
+    learner : registry name of the learner that made it (``node``, ``contraction``)
+    config : the learner's options (plain JSON-able dict)
+    history : training record (``loss`` list, ``train_time_s``, ...)
+    """
+
+    def __init__(self, module: torch.nn.Module, norm: Normalization, learner: str,
+                 config: dict[str, Any], history: dict[str, Any] | None = None) -> None:
+        self.module = module.double().eval()
+        self.norm = norm
+        self.learner = learner
+        self.config = dict(config)
+        self.history = dict(history or {})
+        for p in self.module.parameters():
+            p.requires_grad_(False)
+
+    @property
+    def dim(self) -> int:
+        return self.norm.dim
+
+    @property
+    def goal(self) -> np.ndarray:
+        """The attractor, shape (d,), in user units."""
+        return self.norm.goal
+
+    # ---- torch path (differentiable, batched, no numpy round trip)
+    def torch(self, x: torch.Tensor) -> torch.Tensor:
+        """f(x) in user units; x : tensor, shape (..., d), float64."""
+        shape = x.shape
+        xn = self.norm.to_norm_torch(x.reshape(-1, self.dim))
+        return (self.module(xn) * self.norm.scale).reshape(shape)
+
+    def rollout_torch(self, x0: torch.Tensor, t: torch.Tensor, method: str = "rk4",
+                      options: dict[str, Any] | None = None) -> torch.Tensor:
+        """Integrate from x0, shape (B, d), over t, shape (T,): returns (B, T, d) in user units."""
+        xn0 = self.norm.to_norm_torch(x0)
+        yn = odeint(lambda _t, y: self.module(y), xn0, t, method=method, options=options)
+        return self.norm.from_norm_torch(yn).permute(1, 0, 2)
+
+    # ---- numpy path
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """dx/dt, same shape as x : array, shape (..., d), user units."""
+        x = np.asarray(x, dtype=np.float64)
+        if x.shape[-1] != self.dim:
+            raise ValueError(f"field expects points of dimension {self.dim}, got shape {x.shape}")
+        with torch.no_grad():
+            return self.torch(torch.from_numpy(x)).numpy()
+
+    def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4",
+                substeps: int = 1) -> np.ndarray:
+        """Integrate B starts at once. x0 : (B, d) or (d,); t : (T,). Returns (B, T, d) (or (T, d)).
+
+        Fixed-step solvers take ``substeps`` steps per interval of t.
+        """
+        x0 = np.asarray(x0, dtype=np.float64)
+        single = x0.ndim == 1
+        t = np.asarray(t, dtype=np.float64)
+        options = None
+        if method in ("rk4", "euler", "midpoint", "explicit_adams", "implicit_adams") and substeps > 1:
+            options = {"step_size": float(np.min(np.diff(t))) / substeps}
+        with torch.no_grad():
+            y = self.rollout_torch(torch.from_numpy(np.atleast_2d(x0)), torch.from_numpy(t),
+                                   method, options).numpy()
+        return y[0] if single else y
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the model file atomically (see ``lfd.modelfile``)."""
+        from lfd.modelfile import save_payload
+
+        save_payload({
+            "learner": self.learner,
+            "dim": self.dim,
+            "config": self.config,
+            "normalization": self.norm.to_dict(),
+            "state_dict": {k: v.detach().clone() for k, v in self.module.state_dict().items()},
+            "history": self.history,
+        }, path)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(learner={self.learner!r}, dim={self.dim})"

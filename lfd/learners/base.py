@@ -1,0 +1,46 @@
+"""What a learner is: a config, a torch module on normalised coordinates, and a fit routine."""
+
+from __future__ import annotations
+
+import dataclasses
+from abc import ABC, abstractmethod
+from typing import Any, ClassVar
+
+import torch
+
+from lfd.demos import DemoSet
+from lfd.errors import ConfigError
+from lfd.field import VelocityField
+
+
+class Learner(ABC):
+    """A way to learn a velocity field. Subclasses set ``name``, ``Config`` (a dataclass whose
+    ``__post_init__`` raises ConfigError on bad values) and, optionally, ``field_class``."""
+
+    name: ClassVar[str]
+    Config: ClassVar[type]
+    field_class: ClassVar[type[VelocityField]] = VelocityField
+
+    @classmethod
+    def make_config(cls, **options: Any) -> Any:
+        """Config from keyword options; unknown names and bad values raise ConfigError."""
+        known = {f.name for f in dataclasses.fields(cls.Config)}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ConfigError(f"{cls.name}: unknown option(s) {', '.join(unknown)}; "
+                              f"known: {', '.join(sorted(known))}")
+        try:
+            return cls.Config(**options)
+        except (TypeError, ValueError) as e:
+            raise ConfigError(f"{cls.name}: {e}") from None
+
+    @classmethod
+    @abstractmethod
+    def build(cls, dim: int, config: Any) -> torch.nn.Module:
+        """A fresh module mapping x_n (B, d) -> dx_n/dt (B, d). Call after seeding torch."""
+
+    @classmethod
+    @abstractmethod
+    def fit(cls, module: torch.nn.Module, demos: DemoSet, config: Any, progress: bool) -> dict[str, Any]:
+        """Train ``module`` in place on normalised ``demos``; return the history dict
+        (at least ``loss``: list of floats). Ctrl-C stops training and keeps the best module."""

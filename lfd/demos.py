@@ -291,7 +291,7 @@ def save_file(demos: DemoSet, path: str | os.PathLike) -> None:
             lines = ["demo,t," + ",".join(f"x{j + 1}" for j in range(demos.dim))]
             for i in range(demos.n_demos):
                 for k in range(demos.n_samples):
-                    lines.append(f"{i},{demos.t[i, k]!r}," + ",".join(repr(float(v)) for v in demos.x[i, k]))
+                    lines.append(f"{i},{float(demos.t[i, k])!r}," + ",".join(repr(float(v)) for v in demos.x[i, k]))
             f.write(("\n".join(lines) + "\n").encode())
     else:
         raise DemoError(f"{path}: unknown demo file type (use .csv or .npz)")

@@ -53,7 +53,10 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = True,
 def load(path: str) -> VelocityField:
     """Read a model file (never executes code) and rebuild its field."""
     payload = load_payload(path)
-    cls = get_learner(str(payload["learner"]))
+    try:
+        cls = get_learner(str(payload["learner"]))
+    except ConfigError as e:
+        raise ModelError(f"{path}: {e}") from None
     try:
         config = cls.make_config(**payload["config"])
         module = cls.build(int(payload["dim"]), config).double()

@@ -1,0 +1,182 @@
+"""One benchmark cell: train a learner on one LASA shape with one seed, and score it.
+
+Every learner is wrapped as a ``Model`` with the same four questions, so the scoring code is
+shared by the velocity-field learners and the time-indexed DMP baseline:
+
+- ``reproduce(x, t)``: the rollout y from the demo's start x[0] over the demo's times t, and the
+  model's velocities v to compare with the demo's; for a field v = f(x) at the demo points.
+- ``rollouts(x0, t)``: rollouts from many starts over a long horizon (convergence, figures).
+- ``step_time_us(points, calls)``: median time of one single-point evaluation.
+- ``grid(gx, gy)``: the field on a grid for streamlines (None for a time-indexed model).
+
+Per demo i (N demos, x_i of shape (T, d)): rmse(y_i, x_i), dtw(y_i, x_i, step), chamfer_dtwd,
+frechet, swept_area, velocity_rmse(v_i, xd_i), cosine_error(v_i, xd_i), all in mm and mm/s.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Protocol as TypingProtocol
+
+import numpy as np
+import torch
+
+from lfd import metrics
+from lfd.demos import DemoSet
+from lfd.field import VelocityField
+from lfd.bench import protocol as proto
+
+METRICS: tuple[str, ...] = ("rmse", "dtw", "chamfer_dtwd", "frechet", "swept_area", "velocity_rmse",
+                            "cosine_error")
+TIMING_REPEATS = 5
+
+
+class Model(TypingProtocol):
+    """What the benchmark asks of a trained learner (see the module docstring)."""
+
+    learner: str
+    config: dict[str, Any]
+    train_time_s: float
+    history: dict[str, Any]
+
+    def reproduce(self, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """x : array, shape (T, d) (a demo); t : array, shape (T,). Returns y, v, each (T, d)."""
+
+    def rollouts(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """x0 : array, shape (B, d); t : array, shape (n,). Returns shape (B, n, d)."""
+
+    def step_time_us(self, points: np.ndarray, calls: int) -> float:
+        """Median microseconds of one single-point evaluation, over points of shape (P, d)."""
+
+    def grid(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray | None:
+        """The velocity at (gx[j], gy[i]), shape (len(gy), len(gx), 2), or None."""
+
+
+class FieldModel:
+    """A ``VelocityField`` as a benchmark Model: autonomous, integrated with torchdiffeq's rk4."""
+
+    def __init__(self, field: VelocityField) -> None:
+        self.field = field
+        self.learner = field.learner
+        self.config = dict(field.config)
+        self.history = {k: v for k, v in field.history.items()
+                        if k in ("iterations", "best_loss", "interrupted", "epochs")}
+        self.train_time_s = float(field.history.get("train_time_s", float("nan")))
+
+    def reproduce(self, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        with np.errstate(all="ignore"):
+            return self.field.rollout(x[0], t - t[0]), self.field(x)
+
+    def rollouts(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            return self.field.rollout(x0, t)
+
+    def step_time_us(self, points: np.ndarray, calls: int) -> float:
+        f = self.field.point_fn()
+        pts = [np.array(p) for p in points[:calls]]
+        for p in pts[:20]:
+            f(p)
+        per_call = []
+        for _ in range(TIMING_REPEATS):
+            t0 = time.perf_counter()
+            for p in pts:
+                f(p)
+            per_call.append((time.perf_counter() - t0) / len(pts))
+        return float(np.median(per_call) * 1e6)
+
+    def grid(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+        xx, yy = np.meshgrid(gx, gy)
+        with np.errstate(all="ignore"):
+            return self.field(np.stack([xx, yy], axis=-1))
+
+
+def fit(learner: str, demos: DemoSet, seed: int, options: dict[str, Any]) -> Model:
+    """Train ``learner`` (``dmp`` or a registered field learner) on ``demos`` with ``seed``."""
+    if learner == "dmp":
+        from lfd.bench.dmp import fit_dmp
+
+        return fit_dmp(demos, **options)
+    from lfd.learners import train
+
+    return FieldModel(train(learner, demos, seed=seed, progress=False, **options))
+
+
+def score(model: Model, demos: DemoSet, dtw_step: int) -> tuple[dict[str, list[float]], np.ndarray]:
+    """Per-demo metrics {name: [N floats]} (non-finite for a diverged rollout) and the
+    reproductions y, shape (N, T, d)."""
+    per: dict[str, list[float]] = {m: [] for m in METRICS}
+    ys = []
+    for x, t, xd in zip(demos.x, demos.t, demos.xd):
+        y, v = model.reproduce(x, t)
+        ys.append(y)
+        finite = bool(np.isfinite(y).all())
+        row = {
+            "rmse": metrics.rmse(y, x) if finite else np.inf,
+            "dtw": metrics.dtw(y, x, step=dtw_step) if finite else np.inf,
+            "chamfer_dtwd": metrics.chamfer_dtwd(y, x) if finite else np.inf,
+            "frechet": metrics.frechet(y, x) if finite else np.inf,
+            "swept_area": metrics.swept_area(y, x) if finite else np.inf,
+            "velocity_rmse": metrics.velocity_rmse(v, xd) if np.isfinite(v).all() else np.inf,
+            "cosine_error": metrics.cosine_error(v, xd) if np.isfinite(v).all() else np.inf,
+        }
+        for m in METRICS:
+            per[m].append(float(row[m]))
+    return per, np.stack(ys)
+
+
+def _mean(per: dict[str, list[float]], idx: list[int]) -> dict[str, float] | None:
+    if not idx:
+        return None
+    return {m: float(np.mean([v[i] for i in idx])) for m, v in per.items()}
+
+
+def evaluate_cell(learner: str, shape: str, seed: int, options: dict[str, Any],
+                  protocol: proto.Protocol) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Train and score one (learner, shape, seed). Returns the JSON record and the arrays for
+    the figures: ``demo_rollouts`` (N, T, 2), ``starts`` (B, 2), ``rollouts`` (B, keep, 2),
+    ``final`` (B, 2), ``grid_x`` (G,), ``grid_y`` (G,), ``grid_v`` (G, G, 2) or (0,)."""
+    demos = proto.lasa(shape)
+    train, _ = proto.split(demos, protocol.train_demos)
+    torch.manual_seed(seed)
+    model = fit(learner, train, seed, options)
+    if model.history.get("interrupted"):  # the learner swallowed Ctrl-C: never score or cache it
+        raise KeyboardInterrupt
+
+    per, demo_rollouts = score(model, demos, protocol.dtw_step)
+    train_idx = list(range(protocol.train_demos))
+    test_idx = list(range(protocol.train_demos, demos.n_demos))
+
+    st = proto.starts(demos, shape, protocol)
+    h, n = proto.horizon(demos, protocol)
+    tgrid = np.linspace(0.0, h, n)
+    traj = model.rollouts(st.all, tgrid)
+    final = traj[:, -1]
+    dist = np.linalg.norm(final - demos.goal, axis=1)
+    dist = np.where(np.isfinite(dist), dist, np.inf)
+    conv = {"rate": metrics.convergence_rate(final, demos.goal, protocol.radius_mm)}
+    for name, sl in st.groups().items():
+        conv[name] = metrics.convergence_rate(final[sl], demos.goal, protocol.radius_mm) if len(dist[sl]) else None
+    conv.update(n_starts=int(len(dist)), n_demo=len(st.demo), n_ring=len(st.ring), n_box=len(st.box), radius_mm=protocol.radius_mm, horizon_s=h, n_steps=n,
+                median_final_mm=float(np.median(dist)), max_final_mm=float(np.max(dist)))
+
+    timing_points = train.x.reshape(-1, 2)[:: max(1, train.x.shape[0] * train.x.shape[1] // protocol.timing_calls)]
+    step_us = model.step_time_us(timing_points, protocol.timing_calls)
+
+    lo, hi = demos.bounds(protocol.box_grow)
+    gx, gy = np.linspace(lo[0], hi[0], protocol.grid), np.linspace(lo[1], hi[1], protocol.grid)
+    gv = model.grid(gx, gy)
+    keep = np.unique(np.linspace(0, n - 1, protocol.keep_points).round().astype(int))
+
+    record = {
+        "learner": learner, "shape": shape, "seed": seed, "config": model.config,
+        "train_demos": train_idx, "test_demos": test_idx,
+        "train_time_s": model.train_time_s, "step_time_us": step_us,
+        "train": _mean(per, train_idx), "test": _mean(per, test_idx),
+        "per_demo": per, "convergence": conv, "history": model.history,
+    }
+    arrays = {
+        "demo_rollouts": demo_rollouts, "starts": st.all, "rollouts": traj[:, keep], "final": final,
+        "grid_x": gx, "grid_y": gy, "grid_v": gv if gv is not None else np.zeros(0),
+        "n_demo": np.array(len(st.demo)), "n_ring": np.array(len(st.ring)),
+    }
+    return record, arrays

@@ -1,0 +1,144 @@
+"""The LASA benchmark protocol: which data, which split, which starts, which horizon.
+
+Everything a number in the report depends on, other than the learner and its seed, is a field
+of ``Protocol``; its hash keys the result cache, so changing any of them recomputes.
+
+- Data: ``lfd.lasa(shape)``, 7 demos x 1000 samples, 2-D, in mm, goal (mean end point) at the
+  origin to 1e-3 mm. No resampling, no filtering beyond ``DemoSet``'s smoothed velocities; the
+  learners normalise internally (``lfd.normalization``: x_n = (x - goal) / s, s = max |x - goal|).
+- Split: the first ``train_demos`` demos train, the rest are held-out test demos.
+- Starts (the same for every learner and seed): the 7 demo starts; a ring of ``ring_points``
+  points at distance ``ring_radius * extent`` around each demo start (extent = the larger side
+  of the demos' bounding box); ``box_points`` points uniform in the bounding box grown by
+  ``box_grow`` (its size times 1 + box_grow), seeded by (``starts_seed``, crc32 of the shape).
+- Convergence: a rollout converges if it ends within ``radius_mm`` of the goal after
+  horizon = ``horizon_factor`` x the longest demo's duration.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import zlib
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from lfd.demos import LASA_SHAPES, DemoSet, lasa
+from lfd.errors import ConfigError
+
+PROTOCOL_VERSION = 1
+N_LASA_DEMOS = 7
+QUICK_SHAPES: tuple[str, ...] = ("Angle", "Sine", "GShape")
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """The fixed settings of one benchmark run (see the module docstring).
+
+    train_demos : K, the first K demos train, demos K..6 are test
+    ring_radius, ring_points : perturbed starts on a ring around each demo start
+    box_points, box_grow : uniform starts in the demos' bounding box grown by box_grow
+    starts_seed : seed of the perturbed starts (independent of the learner's seed)
+    radius_mm, horizon_factor : convergence radius (mm) and horizon (x longest demo duration)
+    horizon_stride : convergence rollouts step horizon_stride x the demos' mean sample interval
+    dtw_step : DTW on every dtw_step-th sample (the LASA convention is 4)
+    grid : streamline grid points per side (for the figures)
+    keep_points : samples kept per convergence rollout for the figures
+    timing_calls : single-point evaluations timed per repeat (5 repeats, median)
+    """
+
+    train_demos: int = N_LASA_DEMOS
+    ring_radius: float = 0.1
+    ring_points: int = 8
+    box_points: int = 64
+    box_grow: float = 0.5
+    starts_seed: int = 0
+    radius_mm: float = 1.0
+    horizon_factor: float = 3.0
+    horizon_stride: int = 4
+    dtw_step: int = 4
+    grid: int = 40
+    keep_points: int = 200
+    timing_calls: int = 500
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.train_demos <= N_LASA_DEMOS:
+            raise ConfigError(f"--train-demos must be between 1 and {N_LASA_DEMOS}, got {self.train_demos}")
+        if self.ring_points < 0 or self.box_points < 0 or self.dtw_step < 1 or self.horizon_stride < 1:
+            raise ConfigError("ring_points and box_points must be >= 0, dtw_step and horizon_stride >= 1")
+        if not (self.radius_mm > 0 and self.horizon_factor > 0 and self.ring_radius >= 0):
+            raise ConfigError("radius_mm and horizon_factor must be positive, ring_radius >= 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"version": PROTOCOL_VERSION, **asdict(self)}
+
+
+def stable_hash(obj: Any) -> str:
+    """sha256 of the canonical JSON of ``obj`` (sorted keys), first 16 hex digits."""
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def resolve_shapes(spec: str, quick: bool = False) -> list[str]:
+    """``all`` (or, with quick, the QUICK_SHAPES), or a comma list of LASA shape names."""
+    if spec == "all":
+        return list(QUICK_SHAPES if quick else LASA_SHAPES)
+    names = [s.strip() for s in spec.split(",") if s.strip()]
+    unknown = [s for s in names if s not in LASA_SHAPES]
+    if unknown or not names:
+        raise ConfigError(f"unknown LASA shape(s) {', '.join(unknown) or '(none given)'}; "
+                          f"known: {', '.join(LASA_SHAPES)}")
+    return list(dict.fromkeys(names))
+
+
+def split(demos: DemoSet, train_demos: int) -> tuple[DemoSet, DemoSet | None]:
+    """(train, test): demos 0..K-1 and K..N-1 (None when K = N)."""
+    train = demos.subset(list(range(train_demos)))
+    test = demos.subset(list(range(train_demos, demos.n_demos))) if train_demos < demos.n_demos else None
+    return train, test
+
+
+@dataclass(frozen=True)
+class Starts:
+    """Rollout starts of one shape, each array of shape (n, 2), in mm."""
+
+    demo: np.ndarray
+    ring: np.ndarray
+    box: np.ndarray
+
+    @property
+    def all(self) -> np.ndarray:
+        """demo, ring and box starts stacked, shape (n_demo + n_ring + n_box, 2)."""
+        return np.concatenate([self.demo, self.ring, self.box])
+
+    def groups(self) -> dict[str, slice]:
+        """Where each kind of start sits in ``all``."""
+        a, b = len(self.demo), len(self.demo) + len(self.ring)
+        return {"demo": slice(0, a), "ring": slice(a, b), "box": slice(b, b + len(self.box))}
+
+
+def starts(demos: DemoSet, shape: str, protocol: Protocol) -> Starts:
+    """The demo starts x_i(0), shape (N, d); rings x_i(0) + r (cos th_ik, sin th_ik) with
+    r = ring_radius * extent, th_ik = 2 pi (k + u_i) / ring_points, u_i ~ U(0, 1); and box points
+    ~ U(lo, hi) of ``demos.bounds(box_grow)``. Seeded by (starts_seed, crc32(shape))."""
+    rng = np.random.default_rng([protocol.starts_seed, zlib.crc32(shape.encode())])
+    x0 = demos.x[:, 0].copy()
+    lo, hi = demos.bounds()
+    r = protocol.ring_radius * float(np.max(hi - lo))
+    k = np.arange(protocol.ring_points)
+    th = 2 * np.pi * (k[None, :] + rng.uniform(0, 1, (len(x0), 1))) / max(protocol.ring_points, 1)
+    ring = (x0[:, None, :] + r * np.stack([np.cos(th), np.sin(th)], axis=-1)).reshape(-1, 2)
+    blo, bhi = demos.bounds(protocol.box_grow)
+    box = rng.uniform(blo, bhi, size=(protocol.box_points, 2))
+    return Starts(demo=x0, ring=ring, box=box)
+
+
+def horizon(demos: DemoSet, protocol: Protocol) -> tuple[float, int]:
+    """(H, n): H = horizon_factor * max_i (t_i[-1] - t_i[0]); n samples so that the step
+    H / (n - 1) is at most horizon_stride times the demos' mean sample interval."""
+    durations = demos.t[:, -1] - demos.t[:, 0]
+    h = protocol.horizon_factor * float(durations.max())
+    dt = protocol.horizon_stride * float(np.mean(np.diff(demos.t, axis=1)))
+    return h, int(np.ceil(h / dt)) + 1

@@ -1,0 +1,339 @@
+"""The LASA report: aggregates over shapes, a markdown file and one figure grid per learner.
+
+Per learner and shape a metric is the mean over the shape's demos (and over seeds); the
+report then gives its mean and median over shapes. A diverged rollout's metric is infinite
+(null in JSON): it makes the mean infinite and counts as the worst value for the median.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from lfd.bench.evaluate import METRICS
+from lfd.modelfile import atomic_write
+
+LABELS: dict[str, str] = {
+    "dtw": "DTW (sum, mm)", "rmse": "RMSE (mm)", "chamfer_dtwd": "DTWD* (mm)", "frechet": "Fréchet (mm)",
+    "swept_area": "swept area (mm²)", "velocity_rmse": "vel. RMSE (mm/s)", "cosine_error": "cos. err.",
+}
+ORDER: tuple[str, ...] = ("dtw", "rmse", "chamfer_dtwd", "frechet", "swept_area", "velocity_rmse",
+                          "cosine_error")
+FORMATS: dict[str, str] = {"dtw": ".0f", "rmse": ".2f", "chamfer_dtwd": ".2f", "frechet": ".2f",
+                           "swept_area": ".0f", "velocity_rmse": ".1f", "cosine_error": ".3f"}
+
+# Peers measured on six LASA shapes (true DTW over every 4th sample, one torch thread), from the brief.
+REFERENCES: dict[str, dict[str, float]] = {
+    "Euclideanizing Flows": {"train_time_s": 110.0, "dtw": 300.0, "rmse": 4.9, "step_time_us": 9700.0,
+                             "converged": 0.99},
+    "ELCD": {"train_time_s": 28.0, "dtw": 847.0, "rmse": 9.1, "step_time_us": 14600.0, "converged": 0.43},
+}
+TARGETS: dict[str, tuple[str, float]] = {  # contraction learner, over the 30 shapes
+    "dtw": ("<=", 300.0), "rmse": ("<=", 4.9), "train_time_s": ("<=", 10.0), "step_time_us": ("<=", 100.0),
+    "converged": (">=", 1.0),
+}
+
+
+def _num(v: Any) -> float:
+    return float(v) if v is not None else math.inf
+
+
+def _stats(values: list[float]) -> dict[str, float]:
+    a = np.asarray(values, dtype=np.float64)
+    if len(a) == 0:
+        return {"mean": math.nan, "median": math.nan}
+    with np.errstate(invalid="ignore"):
+        return {"mean": float(np.mean(a)), "median": float(np.median(a))}
+
+
+def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str, Any]]:
+    """{shape: values} for one learner, averaged over seeds: each metric of ``train`` and of
+    ``test`` (None without held-out demos), ``converged`` (all starts), ``converged_perturbed``,
+    ``n_perturbed``, ``train_time_s``, ``step_time_us``."""
+    by: dict[str, list[dict[str, Any]]] = {}
+    for r in records:
+        if r["learner"] == learner:
+            by.setdefault(r["shape"], []).append(r)
+    out: dict[str, dict[str, Any]] = {}
+    for shape, rs in by.items():
+        row: dict[str, Any] = {}
+        for split in ("train", "test"):
+            row[split] = None if rs[0][split] is None else {
+                m: float(np.mean([_num(r[split][m]) for r in rs])) for m in METRICS}
+        conv = [r["convergence"] for r in rs]
+        n_pert = [c["n_ring"] + c["n_box"] for c in conv]
+        n_ok = [(c["ring"] or 0.0) * c["n_ring"] + (c["box"] or 0.0) * c["n_box"] for c in conv]
+        row["converged"] = float(np.mean([c["rate"] for c in conv]))
+        row["converged_perturbed"] = float(np.sum(n_ok) / max(np.sum(n_pert), 1))
+        row["n_perturbed"] = int(np.sum(n_pert))
+        row["n_perturbed_ok"] = int(round(float(np.sum(n_ok))))
+        row["train_time_s"] = float(np.mean([_num(r["train_time_s"]) for r in rs]))
+        row["step_time_us"] = float(np.mean([_num(r["step_time_us"]) for r in rs]))
+        out[shape] = row
+    return out
+
+
+def summarize(records: list[dict[str, Any]], learners: list[str]) -> dict[str, Any]:
+    """{learner: {"shapes", "train": {metric: {mean, median}}, "test" (or None), "converged",
+    "converged_perturbed" (pooled over all perturbed starts), "shapes_all_converged",
+    "train_time_s" (mean, median, total), "step_time_us"}}."""
+    out: dict[str, Any] = {}
+    for learner in learners:
+        rows = per_shape(records, learner)
+        if not rows:
+            continue
+        vals = list(rows.values())
+        s: dict[str, Any] = {"shapes": len(rows)}
+        for split in ("train", "test"):
+            s[split] = None if vals[0][split] is None else {
+                m: _stats([v[split][m] for v in vals]) for m in METRICS}
+        s["converged"] = _stats([v["converged"] for v in vals])
+        s["converged_perturbed"] = (sum(v["n_perturbed_ok"] for v in vals)
+                                    / max(sum(v["n_perturbed"] for v in vals), 1))
+        s["shapes_all_converged"] = sum(v["converged"] == 1.0 for v in vals)
+        s["train_time_s"] = {**_stats([v["train_time_s"] for v in vals]),
+                             "total": float(sum(v["train_time_s"] for v in vals))}
+        s["step_time_us"] = _stats([v["step_time_us"] for v in vals])
+        out[learner] = s
+    return out
+
+
+def _fmt(v: Any, spec: str) -> str:
+    if v is None:
+        return "—"
+    v = float(v)
+    if math.isnan(v):
+        return "—"
+    if math.isinf(v):
+        return "inf"
+    return format(v, spec)
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def summary_table(summary: dict[str, Any], split: str) -> str:
+    """One row per learner, each cell 'mean / median' over shapes."""
+    header = ["learner", "shapes"] + [LABELS[m] for m in ORDER]
+    if split == "train":
+        header += ["converged (all starts)", "converged (perturbed)", "train (s)", "step (µs)"]
+    rows = []
+    for learner, s in summary.items():
+        if s[split] is None:
+            continue
+        row = [learner, str(s["shapes"])]
+        row += [f"{_fmt(s[split][m]['mean'], FORMATS[m])} / {_fmt(s[split][m]['median'], FORMATS[m])}"
+                for m in ORDER]
+        if split == "train":
+            row += [f"{100 * s['converged']['mean']:.1f}% ({s['shapes_all_converged']}/{s['shapes']} shapes all)",
+                    f"{100 * s['converged_perturbed']:.1f}%",
+                    f"{_fmt(s['train_time_s']['mean'], '.2f')} / {_fmt(s['train_time_s']['median'], '.2f')}",
+                    f"{_fmt(s['step_time_us']['mean'], '.1f')} / {_fmt(s['step_time_us']['median'], '.1f')}"]
+        rows.append(row)
+    return _table(header, rows)
+
+
+def shape_table(rows: dict[str, dict[str, Any]], shapes: list[str], split: str) -> str:
+    """One row per shape, then the Mean and Median rows over shapes."""
+    header = ["shape"] + [LABELS[m] for m in ORDER]
+    extra = ["converged", "train (s)", "step (µs)"] if split == "train" else []
+    header += extra
+
+    def cells(get: Callable[[str], float], m: str) -> list[float]:
+        return [get(s) for s in shapes if s in rows]
+
+    body = []
+    for shape in shapes:
+        if shape not in rows:
+            continue
+        r = rows[shape]
+        line = [shape] + [_fmt(r[split][m], FORMATS[m]) for m in ORDER]
+        if extra:
+            line += [f"{100 * r['converged']:.1f}%", _fmt(r["train_time_s"], ".2f"), _fmt(r["step_time_us"], ".1f")]
+        body.append(line)
+    for name, fn in (("**Mean**", np.mean), ("**Median**", np.median)):
+        line = [name]
+        for m in ORDER:
+            with np.errstate(invalid="ignore"):
+                line.append(_fmt(fn(cells(lambda s: rows[s][split][m], m)), FORMATS[m]))
+        if extra:
+            line += [f"{100 * fn(cells(lambda s: rows[s]['converged'], '')):.1f}%",
+                     _fmt(fn(cells(lambda s: rows[s]["train_time_s"], "")), ".2f"),
+                     _fmt(fn(cells(lambda s: rows[s]["step_time_us"], "")), ".1f")]
+        body.append(line)
+    return _table(header, body)
+
+
+def target_lines(summary: dict[str, Any]) -> list[str]:
+    """Each target of the contraction learner with the measured value and met / NOT met."""
+    s = summary.get("contraction")
+    if s is None:
+        return []
+    measured = {"dtw": s["train"]["dtw"]["mean"], "rmse": s["train"]["rmse"]["mean"],
+                "train_time_s": s["train_time_s"]["mean"], "step_time_us": s["step_time_us"]["mean"],
+                "converged": s["converged"]["mean"]}
+    names = {"dtw": "mean DTW", "rmse": "mean RMSE (mm)", "train_time_s": "mean training time per shape (s)",
+             "step_time_us": "mean single-point evaluation (µs)", "converged": "fraction of starts converged"}
+    out = []
+    for key, (op, bound) in TARGETS.items():
+        v = measured[key]
+        ok = v <= bound if op == "<=" else v >= bound
+        out.append(f"- {names[key]}: {_fmt(v, '.4g')} (target {op} {bound:g}): {'met' if ok else '**NOT met**'}")
+    return out
+
+
+def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]]],
+            radius_mm: float, horizon_factor: float) -> str:
+    """A paragraph per learner generated from the numbers."""
+    parts = []
+    for learner, s in summary.items():
+        tr = s["train"]
+        rows = rows_by[learner]
+        worst = sorted(rows, key=lambda k: -rows[k]["train"]["dtw"])[:3]
+        failing = [k for k in rows if rows[k]["converged"] < 1.0]
+        text = (f"**{learner}** reproduces the demos of {s['shapes']} shapes with DTW "
+                f"{_fmt(tr['dtw']['mean'], '.0f')} (median {_fmt(tr['dtw']['median'], '.0f')}) and RMSE "
+                f"{_fmt(tr['rmse']['mean'], '.2f')} mm (median {_fmt(tr['rmse']['median'], '.2f')} mm); "
+                f"{100 * s['converged']['mean']:.1f}% of all starts and {100 * s['converged_perturbed']:.1f}% of "
+                f"the perturbed starts end within {radius_mm:g} mm of the goal after {horizon_factor:g}x the "
+                f"longest demo's duration. Hardest shapes by DTW: "
+                + ", ".join(f"{k} ({rows[k]['train']['dtw']:.0f})" for k in worst) + ". ")
+        if failing:
+            text += ("Starts that do not converge on: " + ", ".join(
+                f"{k} ({100 * rows[k]['converged']:.0f}%)" for k in failing) + ".")
+        else:
+            text += "Every start converges on every shape."
+        if s["test"] is not None:
+            te = s["test"]
+            text += (f" On held-out demos: DTW {_fmt(te['dtw']['mean'], '.0f')}, RMSE "
+                     f"{_fmt(te['rmse']['mean'], '.2f')} mm (means).")
+        parts.append(text)
+    if len(summary) > 1:
+        best_dtw = min(summary, key=lambda k: summary[k]["train"]["dtw"]["mean"])
+        best_rmse = min(summary, key=lambda k: summary[k]["train"]["rmse"]["mean"])
+        parts.append(f"Lowest mean DTW: {best_dtw}; lowest mean RMSE: {best_rmse}.")
+    if "dmp" in summary:
+        parts.append("The DMP is re-timed to each demo's duration (tau) and converges by construction "
+                     "(a spring-damper to the goal once its phase has decayed), so its RMSE and "
+                     "convergence are not the evidence they are for an autonomous field; it has no "
+                     "streamlines, and its velocity metrics compare its rollout's velocity with the "
+                     "demo's, sample by sample.")
+    return "\n\n".join(parts)
+
+
+def figure_grid(records: list[dict[str, Any]], learner: str, shapes: list[str],
+                arrays: Callable[[dict[str, Any]], dict[str, np.ndarray]], path: str | Path) -> None:
+    """All shapes of one learner (first seed): streamlines (fields only), demos (black),
+    rollouts from the demo starts (red), from ring starts (blue) and box starts (grey)."""
+    from matplotlib.figure import Figure
+
+    from lfd.demos import lasa
+
+    recs = {}
+    for r in sorted(records, key=lambda r: r["seed"]):
+        if r["learner"] == learner:
+            recs.setdefault(r["shape"], r)
+    shapes = [s for s in shapes if s in recs]
+    cols = min(6, len(shapes))
+    rows = math.ceil(len(shapes) / cols)
+    fig = Figure(figsize=(2.6 * cols, 2.6 * rows + 0.4))
+    for i, shape in enumerate(shapes):
+        ax = fig.add_subplot(rows, cols, i + 1)
+        a = arrays(recs[shape])
+        gx, gy, gv = a["grid_x"], a["grid_y"], a["grid_v"]
+        if gv.size:
+            v = np.where(np.isfinite(gv), gv, 0.0)
+            ax.streamplot(gx, gy, v[..., 0], v[..., 1], density=0.8, color="0.75", linewidth=0.5,
+                          arrowsize=0.5)
+        demos = lasa(shape)
+        for x in demos.x:
+            ax.plot(x[:, 0], x[:, 1], color="k", lw=1.2, alpha=0.8)
+        nd, nr = int(a["n_demo"]), int(a["n_ring"])
+        for k, traj in enumerate(a["rollouts"]):
+            color, lw = ("tab:blue", 0.5) if nd <= k < nd + nr else ("0.45", 0.4)
+            if k >= nd:
+                ax.plot(traj[:, 0], traj[:, 1], color=color, lw=lw, alpha=0.7)
+        for y in a["demo_rollouts"]:
+            ax.plot(y[:, 0], y[:, 1], color="tab:red", lw=1.0)
+        ax.plot(a["starts"][nd:, 0], a["starts"][nd:, 1], ".", color="tab:blue", ms=1.5)
+        ax.plot(*demos.goal, "*", color="gold", mec="k", ms=8)
+        ax.set_xlim(gx[0], gx[-1])
+        ax.set_ylim(gy[0], gy[-1])
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        dtw = recs[shape]["train"]["dtw"]
+        ax.set_title(f"{shape}  DTW {_fmt(dtw, '.0f')}", fontsize=8)
+    fig.suptitle(f"LASA, {learner}: demos (black), rollouts from demo starts (red), ring starts (blue), "
+                 "box starts (grey)", fontsize=9)
+    fig.tight_layout()
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=80))
+
+
+def write_report(path: str | Path, records: list[dict[str, Any]], learners: list[str],
+                 shapes: list[str], protocol: dict[str, Any], run: dict[str, Any],
+                 arrays: Callable[[dict[str, Any]], dict[str, np.ndarray]],
+                 notes: str | None = None) -> list[Path]:
+    """Write the markdown report and its figures (``figures/lasa_<learner>.png`` beside it).
+    Returns the figure paths."""
+    path = Path(path)
+    summary = summarize(records, learners)
+    rows_by = {learner: per_shape(records, learner) for learner in summary}
+    figdir = path.parent / "figures"
+    figures = []
+    for learner in summary:
+        fp = figdir / f"lasa_{learner}.png"
+        figure_grid(records, learner, shapes, arrays, fp)
+        figures.append(fp)
+    k = protocol["train_demos"]
+    md = [
+        "# LASA benchmark",
+        "",
+        f"Generated by `{run['command']}`. Protocol: [docs/benchmark.md](../docs/benchmark.md) "
+        f"(version {protocol['version']}).",
+        "",
+        f"- {len(shapes)} shapes, seeds {run['seeds']}, trained on demos 0..{k - 1}"
+        + (f", demos {k}..6 held out" if k < 7 else " (all 7)") + "; metrics in mm, DTW = sum of "
+        f"distances along the optimal warping path over every {protocol['dtw_step']}th sample; "
+        "DTWD* = closest-point (Chamfer) distance, not DTW.",
+        f"- Convergence: within {protocol['radius_mm']:g} mm of the goal after {protocol['horizon_factor']:g}x "
+        f"the longest demo's duration, from {7} demo starts, {7 * protocol['ring_points']} ring starts "
+        f"({protocol['ring_radius']:g} x extent around each demo start) and {protocol['box_points']} box "
+        f"starts (bounding box grown by {100 * protocol['box_grow']:g}%) per shape.",
+        f"- Run: {run['workers']} worker process(es), one torch thread each, on {run['cpus']} CPU cores; "
+        f"wall time {run['wall_s']:.0f} s for the cells computed in this run ({run['computed']} computed, "
+        f"{run['cached']} from the cache); load average {run['load_start']} at start, {run['load_end']} at end. "
+        "Timings are inflated by whatever else ran on the machine.",
+        "",
+        "## Summary (mean / median over shapes)",
+        "",
+        summary_table(summary, "train"),
+        "",
+    ]
+    if any(s["test"] is not None for s in summary.values()):
+        md += ["## Held-out demos (mean / median over shapes)", "", summary_table(summary, "test"), ""]
+    md += ["## Targets (contraction learner)", ""]
+    tl = target_lines(summary)
+    md += tl if tl else ["The contraction learner was not part of this run."]
+    md += ["", "Reference points measured by peers on six shapes (true DTW, every 4th sample, one torch thread):", ""]
+    md.append(_table(["method", "train (s/shape)", "DTW", "RMSE (mm)", "step (µs)", "converged"],
+                     [[name, f"{r['train_time_s']:g}", f"{r['dtw']:g}", f"{r['rmse']:g}",
+                       f"{r['step_time_us']:g}", f"{100 * r['converged']:g}%"] for name, r in REFERENCES.items()]))
+    md += ["", "## Reading", "", reading(summary, rows_by, protocol["radius_mm"], protocol["horizon_factor"]), ""]
+    if notes:
+        md += [notes.strip(), ""]
+    for learner in summary:
+        md += [f"## Per shape: {learner}", "", shape_table(rows_by[learner], shapes, "train"), ""]
+        if summary[learner]["test"] is not None:
+            md += [f"Held-out demos, {learner}:", "", shape_table(rows_by[learner], shapes, "test"), ""]
+        rel = Path("figures") / f"lasa_{learner}.png"
+        md += [f"![LASA {learner}]({rel.as_posix()})", ""]
+    text = "\n".join(md)
+    atomic_write(path, lambda f: f.write(text.encode()))
+    return figures

@@ -1,0 +1,139 @@
+"""``lfd bench lasa``: the LASA benchmark (docs/benchmark.md) for node, contraction and dmp.
+
+Trains each learner on each shape and seed in parallel worker processes, caches every finished
+cell (resumable), then writes the results JSON and the markdown report with its figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+BENCH_LEARNERS: tuple[str, ...] = ("node", "contraction", "dmp")
+# --quick: fewer iterations, for the CI smoke test (merged under any --option given)
+QUICK_OPTIONS: dict[str, dict[str, Any]] = {
+    "contraction": {"iterations": 300},
+    "node": {},
+    "dmp": {},
+}
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("bench", help="run a benchmark and write its report",
+                              description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="suite", metavar="SUITE", parser_class=type(p))
+    sub.required = True
+    q = sub.add_parser("lasa", help="the LASA handwriting benchmark (30 shapes)",
+                       description="Train and score learners on the LASA shapes; see docs/benchmark.md.")
+    q.add_argument("--learner", default="all", choices=[*BENCH_LEARNERS, "all"],
+                   help="learner to benchmark (default: all)")
+    q.add_argument("--shapes", default="all", metavar="all|NAME,...",
+                   help="LASA shapes, comma-separated (default: all 30; with --quick: 3)")
+    q.add_argument("--seeds", type=int, default=1, metavar="N", help="train with seeds 0..N-1 (default 1)")
+    q.add_argument("--workers", type=int, default=os.cpu_count() or 1, metavar="N",
+                   help="worker processes (default: the CPU count; 1 runs in this process)")
+    q.add_argument("--train-demos", type=int, default=7, metavar="K",
+                   help="train on the first K demos, test on the rest (default 7)")
+    q.add_argument("--quick", action="store_true",
+                   help=f"smoke test: shapes {','.join(_quick_shapes())} and fewer iterations")
+    q.add_argument("--option", action="append", default=[], metavar="LEARNER.KEY=VALUE",
+                   help="a learner option, e.g. contraction.rate=1.0 (VALUE is JSON, else a string)")
+    q.add_argument("--json", required=True, metavar="PATH", help="write all results here")
+    q.add_argument("--report", required=True, metavar="PATH",
+                   help="write the markdown report here (figures go to figures/ beside it)")
+    q.add_argument("--cache", metavar="DIR",
+                   help="finished cells (default: .cache/<json stem>/ beside --json)")
+    q.add_argument("--fresh", action="store_true", help="recompute every cell, ignoring the cache")
+    q.add_argument("--notes", metavar="PATH", help="markdown appended to the report's Reading section")
+    return p
+
+
+def _quick_shapes() -> tuple[str, ...]:
+    from lfd.bench.protocol import QUICK_SHAPES
+
+    return QUICK_SHAPES
+
+
+def parse_options(items: list[str], learners: list[str]) -> dict[str, dict[str, Any]]:
+    """``["contraction.rate=1.0", ...]`` -> {"contraction": {"rate": 1.0}}."""
+    from lfd.errors import ConfigError
+
+    out: dict[str, dict[str, Any]] = {name: {} for name in learners}
+    for item in items:
+        key, eq, raw = item.partition("=")
+        learner, dot, name = key.partition(".")
+        if not (eq and dot and name):
+            raise ConfigError(f"--option {item}: expected LEARNER.KEY=VALUE")
+        if learner not in BENCH_LEARNERS:
+            raise ConfigError(f"--option {item}: unknown learner '{learner}'")
+        try:
+            value = json.loads(raw)
+        except ValueError:
+            value = raw
+        out.setdefault(learner, {})[name] = value
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from lfd.bench import protocol as proto
+    from lfd.bench.report import summarize, write_report
+    from lfd.bench.runner import Cell, load_arrays, resolve_config, run_cells, write_json
+    from lfd.errors import ConfigError
+
+    if args.seeds < 1 or args.workers < 1:
+        raise ConfigError("--seeds and --workers must be >= 1")
+    learners = list(BENCH_LEARNERS) if args.learner == "all" else [args.learner]
+    shapes = proto.resolve_shapes(args.shapes, quick=args.quick)
+    protocol = proto.Protocol(train_demos=args.train_demos)
+    options = parse_options(args.option, learners)
+    if args.quick:
+        options = {k: {**QUICK_OPTIONS.get(k, {}), **v} for k, v in options.items()}
+    options = {k: v for k, v in options.items() if k in learners}
+    configs = {k: resolve_config(k, options[k]) for k in learners}
+    notes = Path(args.notes).read_text() if args.notes else None
+    seeds = list(range(args.seeds))
+    cells = [Cell.make(learner, shape, seed, options[learner], protocol)
+             for learner in learners for shape in shapes for seed in seeds]
+    json_path = Path(args.json)
+    cache = Path(args.cache) if args.cache else json_path.parent / ".cache" / json_path.stem
+
+    load_start = _load()
+    t0 = time.perf_counter()
+    result = run_cells(cells, cache, workers=min(args.workers, max(len(cells), 1)), fresh=args.fresh,
+                       progress=True)
+    wall = time.perf_counter() - t0
+    run_info = {
+        "command": _command(args), "seeds": seeds, "workers": args.workers, "cpus": os.cpu_count(),
+        "wall_s": wall, "computed": len(result.computed), "cached": len(result.cached),
+        "load_start": load_start, "load_end": _load(), "cache": str(cache),
+    }
+    figures = write_report(args.report, result.records, learners, shapes, protocol.to_dict(), run_info,
+                           lambda r: load_arrays(cache, r), notes)
+    write_json(json_path, {
+        "protocol": protocol.to_dict(), "protocol_hash": proto.stable_hash(protocol.to_dict()),
+        "learners": configs, "shapes": shapes, "seeds": seeds, "quick": bool(args.quick),
+        "summary": summarize(result.records, learners), "run": run_info, "results": result.records,
+    })
+    print(f"{len(result.computed)} cell(s) computed, {len(result.cached)} from {cache}, in {wall:.1f} s")
+    print(f"wrote {json_path}, {args.report} and {', '.join(str(f) for f in figures)}")
+    return 0
+
+
+def _load() -> str:
+    try:
+        return " ".join(f"{v:.2f}" for v in os.getloadavg())
+    except OSError:
+        return "n/a"
+
+
+def _command(args: argparse.Namespace) -> str:
+    parts = ["lfd bench lasa", f"--learner {args.learner}", f"--shapes {args.shapes}",
+             f"--seeds {args.seeds}", f"--workers {args.workers}", f"--train-demos {args.train_demos}"]
+    parts += ["--quick"] if args.quick else []
+    parts += [f"--option {o}" for o in args.option]
+    parts += [f"--json {args.json}", f"--report {args.report}"]
+    return " ".join(parts)

@@ -1,0 +1,63 @@
+"""``lfd eval``: roll a model out from each demo's start and score it against the demos.
+
+Prints a table (one row per demo, then the mean) and, with --json, writes the numbers
+atomically: {"model", "learner", "demos", "dim", "n_demos", "dtw_step", "metrics",
+"per_demo": [{metric: value}], "mean": {metric: value}}; a non-finite value is written as null.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("eval", help="score a model's rollouts against demos",
+                              description=__doc__.splitlines()[0])
+    p.add_argument("model", help="model file written by 'lfd train'")
+    p.add_argument("--demos", required=True, metavar="SPEC",
+                   help="spiral, spiral3d, lasa:NAME or a .csv/.npz file")
+    p.add_argument("--json", metavar="PATH", help="write the metrics to this JSON file")
+    p.add_argument("--dtw-step", type=int, default=1, metavar="K",
+                   help="DTW on every K-th sample (the LASA protocol uses 4; default 1)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from lfd.commands import model_and_demos
+    from lfd.errors import ConfigError
+    from lfd.metrics import evaluate
+    from lfd.modelfile import atomic_write
+
+    if args.dtw_step < 1:
+        raise ConfigError(f"--dtw-step must be >= 1, got {args.dtw_step}")
+    field, demos = model_and_demos(args.model, args.demos)
+    result = evaluate(field, demos, dtw_step=args.dtw_step)
+    names = list(result["mean"])
+    print(format_table(names, result["per_demo"], result["mean"]))
+    if args.json:
+        report = {"model": str(args.model), "learner": field.learner, "demos": demos.name,
+                  "dim": demos.dim, "n_demos": demos.n_demos, "dtw_step": args.dtw_step,
+                  "metrics": names, "per_demo": [_finite(r) for r in result["per_demo"]],
+                  "mean": _finite(result["mean"])}
+        text = json.dumps(report, indent=2, allow_nan=False) + "\n"
+        atomic_write(args.json, lambda f: f.write(text.encode()))
+        print(f"wrote {args.json}")
+    return 0
+
+
+def format_table(names: list[str], rows: list[dict[str, float]], mean: dict[str, float]) -> str:
+    """A fixed-width table: a header, one line per demo, one line for the mean."""
+    widths = [max(10, len(n)) + 2 for n in names]
+
+    def line(label: str, row: dict[str, float]) -> str:
+        return label.ljust(6) + "".join(f"{row[n]:{w}.4g}" for n, w in zip(names, widths))
+
+    head = "demo".ljust(6) + "".join(n.rjust(w) for n, w in zip(names, widths))
+    return "\n".join([head, *(line(str(i), r) for i, r in enumerate(rows)), line("mean", mean)])
+
+
+def _finite(row: dict[str, float]) -> dict[str, float | None]:
+    return {k: (v if math.isfinite(v) else None) for k, v in row.items()}

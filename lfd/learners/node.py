@@ -1,0 +1,365 @@
+"""Neural ODE learner: an MLP velocity field fitted by integrating it through the demos.
+
+The field is dx_n/dt = f_theta(x_n), an MLP with a linear output layer (so velocities take
+either sign), optionally shifted so the goal is an equilibrium:
+
+    f_theta(x) = g_theta(x) - g_theta(0)                                   (goal_equilibrium)
+
+It is trained by multiple shooting on the trajectory-matching loss: from a demo sample x_k,
+integrate ``seg`` samples with torchdiffeq and compare with the demo,
+
+    L(theta) = 1 / (B (S - 1) d) sum_b sum_{j=1}^{S-1} || phi_theta(t_{k+j} - t_k; x_k) - x_{k+j} ||^2,
+
+where phi_theta is the flow of f_theta. The segment length S grows from ``seg_start`` to ``seg``
+over the first ``curriculum`` fraction of the iterations (short segments first: cheap and
+well conditioned; long segments last: they penalise drift). Adam with a cosine learning
+rate from ``lr`` to ``lr_final``.
+
+Each demo i is integrated on its own sample grid t_k = t_0 + k h_i: the solver runs in
+sample units tau = (t - t_k) / h_i on dx/dtau = h_i f_theta(x), so demos of different
+durations share one batch. Demos on non-uniform grids are resampled (linearly) onto
+uniform ones.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+import torch
+from scipy.special import expit
+from torch import nn
+from torchdiffeq import odeint, odeint_adjoint
+from tqdm.auto import tqdm
+
+from lfd.demos import DemoSet
+from lfd.errors import ConfigError
+from lfd.field import VelocityField
+from lfd.learners.base import Learner
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {
+    "tanh": nn.Tanh, "relu": nn.ReLU, "softplus": nn.Softplus, "elu": nn.ELU, "silu": nn.SiLU,
+}
+FIXED_SOLVERS: tuple[str, ...] = ("euler", "midpoint", "heun2", "heun3", "rk4", "explicit_adams",
+                                  "implicit_adams")
+ADAPTIVE_SOLVERS: tuple[str, ...] = ("dopri5", "dopri8", "bosh3", "fehlberg2", "adaptive_heun")
+DTYPES: dict[str, torch.dtype] = {"float32": torch.float32, "float64": torch.float64}
+# Training runs on one thread: with batches of a few hundred points the MLP is bound by
+# per-op overhead, and a second thread measured no faster (slower under load) on 2 cores.
+TRAIN_THREADS = 1
+POSTFIX_EVERY = 25
+
+
+@dataclass
+class NodeConfig:
+    """Options of the NODE learner (all JSON-able).
+
+    hidden : widths of the hidden layers       activation : tanh, relu, softplus, elu or silu
+    lr, lr_final : Adam learning rate, cosine-annealed from lr to lr_final over ``iters``
+    solver : torchdiffeq method; ``substeps`` fixed steps per sample, ``rtol``/``atol`` if adaptive
+    adjoint : backpropagate with odeint_adjoint (O(1) memory in the segment length, slower)
+    seg : samples per shooting segment at the end; ``seg_start`` at the start, growing linearly
+          over the first ``curriculum`` fraction of the iterations
+    batch : segments per iteration, drawn at random (0: every segment, full batch)
+    samples : resample each demo to this many samples before training (0: keep them)
+    dtype : float32 or float64 for training (the fitted field always evaluates in float64)
+    goal_equilibrium : subtract g(0) so that f(0) = 0 exactly: the goal is an equilibrium
+    """
+
+    hidden: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"
+    lr: float = 5e-3
+    lr_final: float = 5e-5
+    iters: int = 2000
+    solver: str = "rk4"
+    substeps: int = 1
+    rtol: float = 1e-5
+    atol: float = 1e-6
+    adjoint: bool = False
+    seg: int = 20
+    seg_start: int = 3
+    curriculum: float = 0.5
+    batch: int = 128
+    samples: int = 0
+    dtype: str = "float32"
+    goal_equilibrium: bool = True
+    weight_decay: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.hidden = tuple(int(w) for w in self.hidden)
+        if not self.hidden or any(w < 1 for w in self.hidden):
+            raise ValueError(f"hidden must list at least one positive width, got {list(self.hidden)}")
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"unknown activation '{self.activation}'; known: {', '.join(ACTIVATIONS)}")
+        if self.solver not in FIXED_SOLVERS + ADAPTIVE_SOLVERS:
+            raise ValueError(f"unknown solver '{self.solver}'; known: "
+                             f"{', '.join(FIXED_SOLVERS + ADAPTIVE_SOLVERS)}")
+        if self.dtype not in DTYPES:
+            raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got '{self.dtype}'")
+        for name in ("lr", "lr_final", "rtol", "atol"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        if self.lr_final > self.lr:
+            raise ValueError(f"lr_final ({self.lr_final}) must not exceed lr ({self.lr})")
+        if not (math.isfinite(self.weight_decay) and self.weight_decay >= 0):
+            raise ValueError(f"weight_decay must be >= 0, got {self.weight_decay}")
+        for name, low in (("iters", 1), ("substeps", 1), ("seg", 2), ("seg_start", 2), ("batch", 0),
+                          ("samples", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if self.seg_start > self.seg:
+            raise ValueError(f"seg_start ({self.seg_start}) must not exceed seg ({self.seg})")
+        if 0 < self.samples < self.seg:
+            raise ValueError(f"samples ({self.samples}) must be at least seg ({self.seg})")
+        if not (0.0 <= self.curriculum <= 1.0):
+            raise ValueError(f"curriculum must lie in [0, 1], got {self.curriculum}")
+        if not isinstance(self.adjoint, bool) or not isinstance(self.goal_equilibrium, bool):
+            raise ValueError("adjoint and goal_equilibrium must be true or false")
+
+
+class NodeMLP(nn.Module):
+    """f(x) = g(x) - g(0) (or g(x)), g an MLP with linear output; x : (B, d) -> (B, d)."""
+
+    def __init__(self, dim: int, hidden: tuple[int, ...], activation: str, goal_equilibrium: bool) -> None:
+        super().__init__()
+        self.activation = activation
+        self.goal_equilibrium = goal_equilibrium
+        layers: list[nn.Module] = []
+        width = dim
+        for w in hidden:
+            layers += [nn.Linear(width, w), ACTIVATIONS[activation]()]
+            width = w
+        layers.append(nn.Linear(width, dim))
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.net(x)
+        if self.goal_equilibrium:
+            y = y - self.net(torch.zeros_like(x[:1]))
+        return y
+
+    def linears(self) -> list[nn.Linear]:
+        return [m for m in self.net if isinstance(m, nn.Linear)]
+
+
+class SegmentDynamics(nn.Module):
+    """dx/dtau = h f(x) in sample units tau; h : (B, 1), the sample step of each segment's demo.
+
+    With ``cache_offset`` the goal offset g(0) of a NodeMLP is computed once per ``begin``
+    (the parameters are fixed during one integration), not at every evaluation; odeint_adjoint
+    needs the plain f(x) instead, since it differentiates each evaluation on its own.
+    """
+
+    def __init__(self, field: NodeMLP, cache_offset: bool) -> None:
+        super().__init__()
+        self.field = field
+        self.cache_offset = cache_offset and field.goal_equilibrium
+        self.h = torch.ones(1, 1)
+        self.offset: torch.Tensor | None = None
+
+    def begin(self, h: torch.Tensor) -> None:
+        """Set the steps h (B, 1) of the next batch and, if cached, g(0) (1, d)."""
+        self.h = h
+        if self.cache_offset:
+            d = self.field.linears()[0].in_features
+            self.offset = self.field.net(torch.zeros(1, d, dtype=h.dtype))
+
+    def forward(self, t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        if self.cache_offset:
+            return (self.field.net(x) - self.offset) * self.h
+        return self.field(x) * self.h
+
+
+@dataclass(frozen=True)
+class Segments:
+    """All shooting segments of S samples: windows (S, M, d) and their sample steps h (M, 1)."""
+
+    windows: torch.Tensor
+    h: torch.Tensor
+
+    @classmethod
+    def of(cls, x: torch.Tensor, h: torch.Tensor, seg: int) -> "Segments":
+        """x : (N, T, d) uniform-grid demos; h : (N,) their sample steps."""
+        n, T, d = x.shape
+        w = x.unfold(1, seg, 1)                       # (N, T - S + 1, d, S)
+        windows = w.permute(3, 0, 1, 2).reshape(seg, -1, d).contiguous()
+        return cls(windows, h.repeat_interleave(T - seg + 1).reshape(-1, 1))
+
+
+def uniform_grid(demos: DemoSet, samples: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Demos on uniform per-demo time grids: x (N, T', d) and sample steps h (N,).
+
+    Demos already uniform and not resampled (``samples`` 0 or T) are returned unchanged.
+    """
+    T = samples or demos.n_samples
+    xs, hs = [], []
+    for t, x in zip(demos.t, demos.x):
+        steps = np.diff(t)
+        uniform = np.ptp(steps) <= 1e-6 * steps.mean()
+        if uniform and T == len(t):
+            xs.append(x)
+        else:
+            tn = np.linspace(t[0], t[-1], T)
+            xs.append(np.stack([np.interp(tn, t, x[:, j]) for j in range(x.shape[1])], axis=1))
+        hs.append((t[-1] - t[0]) / (T - 1))
+    return np.stack(xs), np.asarray(hs)
+
+
+def segment_length(config: NodeConfig, k: int) -> int:
+    """S_k = round(seg_start + (seg - seg_start) min(1, k / (curriculum iters)))."""
+    ramp = config.curriculum * config.iters
+    frac = 1.0 if ramp <= 0 else min(1.0, k / ramp)
+    return int(round(config.seg_start + (config.seg - config.seg_start) * frac))
+
+
+def solver_options(config: NodeConfig) -> dict[str, Any]:
+    """Keyword arguments of odeint for the configured solver, in sample units tau."""
+    if config.solver in FIXED_SOLVERS:
+        # one step per sample needs no step_size: the solver then steps on the output grid itself
+        options = {"step_size": 1.0 / config.substeps} if config.substeps > 1 else None
+        return {"method": config.solver, "options": options}
+    return {"method": config.solver, "rtol": config.rtol, "atol": config.atol}
+
+
+def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: NodeConfig,
+                 progress: bool = True, desc: str = "node") -> dict[str, Any]:
+    """Train ``module`` in place by multiple shooting on uniform-grid demos (see module docstring).
+
+    x : tensor, shape (N, T, d), normalised demos; h : tensor, shape (N,), sample steps.
+    Returns the history: ``loss`` (per iteration), ``seg`` (final), ``best_loss``, ``best_iter``,
+    ``iters_done``, ``interrupted`` (Ctrl-C) and ``diverged`` (non-finite loss). Training ends
+    on the best iterate at the final segment length (the loss only compares at equal length).
+    """
+    dtype = DTYPES[config.dtype]
+    module.to(dtype).train()
+    x, h = x.to(dtype), h.to(dtype)
+    dynamics = SegmentDynamics(module, cache_offset=not config.adjoint)
+    integrate = odeint_adjoint if config.adjoint else odeint
+    kwargs = solver_options(config)
+    if config.adjoint:
+        kwargs["adjoint_params"] = tuple(module.parameters())
+    opt = torch.optim.Adam(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.iters, eta_min=config.lr_final)
+    gen = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,)).item()))
+
+    losses: list[float] = []
+    best: tuple[float, int, dict[str, torch.Tensor]] | None = None
+    interrupted = diverged = False
+    segments: Segments | None = None
+    threads = torch.get_num_threads()
+    torch.set_num_threads(TRAIN_THREADS)
+    try:
+        with tqdm(total=config.iters, desc=desc, disable=not progress, leave=False) as bar:
+            for k in range(config.iters):
+                seg = segment_length(config, k)
+                if segments is None or segments.windows.shape[0] != seg:
+                    segments, best = Segments.of(x, h, seg), None
+                    tau = torch.arange(seg, dtype=dtype)
+                m = segments.windows.shape[1]
+                if 0 < config.batch < m:
+                    idx = torch.randint(0, m, (config.batch,), generator=gen)
+                    w, hb = segments.windows[:, idx], segments.h[idx]
+                else:
+                    w, hb = segments.windows, segments.h
+                dynamics.begin(hb)
+                pred = integrate(dynamics, w[0], tau, **kwargs)
+                loss = torch.mean((pred[1:] - w[1:]) ** 2)
+                value = float(loss.item())
+                if not math.isfinite(value):
+                    diverged = True
+                    break
+                losses.append(value)
+                if best is None or value < best[0]:
+                    best = (value, k, copy.deepcopy(module.state_dict()))
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                sched.step()
+                bar.update(1)
+                if k % POSTFIX_EVERY == 0:
+                    bar.set_postfix(loss=f"{value:.3g}", seg=seg, refresh=False)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        torch.set_num_threads(threads)
+    if best is not None:
+        module.load_state_dict(best[2])
+    module.eval()
+    return {
+        "loss": losses,
+        "seg": segment_length(config, max(len(losses) - 1, 0)),
+        "best_loss": best[0] if best else None,
+        "best_iter": best[1] if best else None,
+        "iters_done": len(losses),
+        "interrupted": interrupted,
+        "diverged": diverged,
+    }
+
+
+class NodeField(VelocityField):
+    """A NODE velocity field with a pure-numpy single-point path for control loops."""
+
+    def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
+        """x_n (d,) -> f(x_n) (d,): the MLP in numpy float64, g(0) folded into the output bias."""
+        module: NodeMLP = self.module  # type: ignore[assignment]
+        lin = [(m.weight.detach().numpy().copy(), m.bias.detach().numpy().copy()) for m in module.linears()]
+        act = _numpy_activation(module.activation)
+        hidden, (w_out, b_out) = lin[:-1], lin[-1]
+
+        def g(xn: np.ndarray) -> np.ndarray:
+            z = xn
+            for w, b in hidden:
+                z = act(w @ z + b)
+            return w_out @ z + b_out
+
+        if module.goal_equilibrium:
+            b_out = b_out - g(np.zeros(lin[0][0].shape[1]))
+
+        def f(xn: np.ndarray) -> np.ndarray:
+            z = xn
+            for w, b in hidden:
+                z = act(w @ z + b)
+            return w_out @ z + b_out
+
+        return f
+
+
+def _numpy_activation(name: str) -> Callable[[np.ndarray], np.ndarray]:
+    """The numpy twin of the torch activation ``name`` (softplus: beta 1, threshold 20, as torch)."""
+    if name == "tanh":
+        return np.tanh
+    if name == "relu":
+        return lambda z: np.maximum(z, 0.0)
+    if name == "softplus":
+        return lambda z: np.where(z > 20.0, z, np.log1p(np.exp(np.minimum(z, 20.0))))
+    if name == "elu":
+        return lambda z: np.where(z > 0.0, z, np.expm1(np.minimum(z, 0.0)))
+    if name == "silu":
+        return lambda z: z * expit(z)
+    raise ValueError(f"unknown activation '{name}'")
+
+
+class NodeLearner(Learner):
+    """Neural ODE: an MLP field trained by multiple shooting through torchdiffeq."""
+
+    name: ClassVar[str] = "node"
+    Config: ClassVar[type] = NodeConfig
+    field_class: ClassVar[type[VelocityField]] = NodeField
+
+    @classmethod
+    def build(cls, dim: int, config: NodeConfig) -> nn.Module:
+        """A fresh NodeMLP x_n (B, d) -> dx_n/dt (B, d), in the training dtype."""
+        return NodeMLP(dim, config.hidden, config.activation, config.goal_equilibrium).to(DTYPES[config.dtype])
+
+    @classmethod
+    def fit(cls, module: nn.Module, demos: DemoSet, config: NodeConfig, progress: bool) -> dict[str, Any]:
+        """Multiple shooting on the normalised ``demos`` (see ``fit_segments``)."""
+        x, h = uniform_grid(demos, config.samples)
+        if config.seg > x.shape[1]:
+            raise ConfigError(f"node: seg ({config.seg}) exceeds the {x.shape[1]} samples per demo")
+        return fit_segments(module, torch.from_numpy(x), torch.from_numpy(h), config, progress)

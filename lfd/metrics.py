@@ -1,0 +1,324 @@
+"""Metrics that compare a reproduced trajectory with a demonstration, and a field with demo velocities.
+
+Every curve is an array of shape (T, d); a pair of curves may differ in length where the
+metric allows it. The curve and velocity metrics are pure numpy/scipy and return Python floats;
+``reproduce``, ``evaluate`` and ``converged_fraction`` roll a field out first.
+
+Names and what they measure:
+
+- ``rmse``: time-aligned error, sensitive to timing.
+- ``dtw``: dynamic time warping distance (a SUM of point distances along the best monotone
+  alignment), insensitive to timing, sensitive to direction.
+- ``chamfer_dtwd``: closest-point (Chamfer) distance, the quantity some papers call "DTWD";
+  it ignores order entirely, so it is NOT dynamic time warping.
+- ``frechet``: discrete Frechet distance (the "dog leash" length), a max, not a sum.
+- ``swept_area``: swept error area between two planar curves (LASA literature).
+- ``velocity_rmse`` / ``cosine_error``: field values against demo velocities.
+- ``final_goal_distance`` / ``convergence_rate`` / ``converged_fraction``: reaching the goal.
+- ``reproduce`` / ``evaluate``: roll a field out from every demo start and score all of the above.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
+
+if TYPE_CHECKING:
+    from lfd.demos import DemoSet
+    from lfd.field import VelocityField
+
+__all__ = [
+    "PER_DEMO_METRICS", "chamfer_dtwd", "converged_fraction", "convergence_rate", "cosine_error",
+    "dtw", "evaluate", "final_goal_distance", "frechet", "reproduce", "resample", "rmse", "swept_area",
+    "velocity_rmse",
+]
+
+
+def _curve(a: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 2 or a.shape[0] < 1:
+        raise ValueError(f"{name} must have shape (T, d) with T >= 1, got {a.shape}")
+    return a
+
+
+def _pair(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a, b = _curve(a, "a"), _curve(b, "b")
+    if a.shape[1] != b.shape[1]:
+        raise ValueError(f"curves differ in dimension: {a.shape} vs {b.shape}")
+    return a, b
+
+
+def resample(x: np.ndarray, n: int) -> np.ndarray:
+    """Resample a curve to ``n`` samples, linearly in sample index (not in arc length or time).
+
+    Sample k of the result is x interpolated at fractional index k (T - 1) / (n - 1).
+    x : array, shape (T, d); returns shape (n, d).
+    """
+    x = _curve(x, "x")
+    if x.shape[0] == n:
+        return x
+    if x.shape[0] == 1:
+        return np.repeat(x, n, axis=0)
+    s = np.linspace(0.0, x.shape[0] - 1.0, n)
+    k = np.arange(x.shape[0])
+    return np.stack([np.interp(s, k, x[:, j]) for j in range(x.shape[1])], axis=1)
+
+
+def rmse(a: np.ndarray, b: np.ndarray) -> float:
+    """Time-aligned root-mean-square error: sqrt( (1/T) sum_k |a_k - b_k|^2 ).
+
+    a : array, shape (T, d); b : array, shape (T', d). If T' != T, b is first resampled to T
+    samples linearly in sample index (see ``resample``), i.e. both curves are assumed to span
+    the same time interval.
+    """
+    a, b = _pair(a, b)
+    b = resample(b, a.shape[0])
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
+def _antidiagonal_dp(c: np.ndarray, combine: str) -> float:
+    """The value D[n, m] of the classic warping recursion over a cost matrix c, shape (n, m):
+
+    D[i, j] = c[i, j] (+ or max) min(D[i-1, j-1], D[i-1, j], D[i, j-1]),  D[0, 0] = c[0, 0],
+    with ``combine`` "sum" (DTW) or "max" (discrete Frechet).
+
+    Cells on one anti-diagonal i + j = s depend only on the two previous anti-diagonals, so each
+    diagonal is one vector operation. On the padded (n+1, m+1) table stored flat with row length
+    m + 1, cell (i, s - i) sits at flat index i m + s: an anti-diagonal is a strided slice.
+    """
+    n, m = c.shape
+    w = m + 1
+    D = np.full((n + 1) * w, np.inf)
+    C = np.zeros((n + 1) * w)
+    C.reshape(n + 1, w)[1:, 1:] = c
+    D[0] = 0.0 if combine == "sum" else -np.inf  # padded origin: D[1, 1] = c[0, 0]
+    op = np.add if combine == "sum" else np.maximum
+    for s in range(2, n + m + 1):
+        i0, i1 = max(1, s - m), min(n, s - 1)
+        cur = slice(i0 * m + s, i1 * m + s + 1, m)
+        diag = slice(cur.start - w - 1, cur.stop - w - 1, m)
+        up = slice(cur.start - w, cur.stop - w, m)
+        left = slice(cur.start - 1, cur.stop - 1, m)
+        best = np.minimum(np.minimum(D[diag], D[up]), D[left])
+        D[cur] = op(C[cur], best)
+    return float(D[n * w + m])
+
+
+def dtw(a: np.ndarray, b: np.ndarray, step: int = 1) -> float:
+    """Dynamic time warping distance: the minimum, over monotone warping paths, of the SUM of
+    Euclidean point distances.
+
+    DTW(a, b) = min_P sum_{(i, j) in P} |a_i - b_j|, where P runs from (0, 0) to (n-1, m-1) by
+    steps (1, 0), (0, 1) or (1, 1). Computed by the classic O(n m) recursion
+    D[i, j] = |a_i - b_j| + min(D[i-1, j-1], D[i-1, j], D[i, j-1]), vectorised by anti-diagonals.
+    ``step`` > 1 first keeps every step-th sample, a[::step] and b[::step] (the LASA protocol
+    uses step = 4). a : array, shape (n, d); b : array, shape (m, d). Not normalised by length:
+    two curves a constant distance c apart with n = m samples, aligned, give n c.
+    """
+    if step < 1:
+        raise ValueError(f"step must be >= 1, got {step}")
+    a, b = _pair(a, b)
+    a, b = a[::step], b[::step]
+    return _antidiagonal_dp(cdist(a, b), "sum")
+
+
+def frechet(a: np.ndarray, b: np.ndarray) -> float:
+    """Discrete Frechet distance (Eiter & Mannila 1994): the shortest leash over monotone couplings.
+
+    F(a, b) = min_P max_{(i, j) in P} |a_i - b_j|, by the recursion
+    ca[i, j] = max(|a_i - b_j|, min(ca[i-1, j-1], ca[i-1, j], ca[i, j-1])).
+    a : array, shape (n, d); b : array, shape (m, d).
+    """
+    a, b = _pair(a, b)
+    return _antidiagonal_dp(cdist(a, b), "max")
+
+
+def chamfer_dtwd(a: np.ndarray, b: np.ndarray) -> float:
+    """Closest-point (Chamfer) distance, the "DTWD" of some LfD papers. Not dynamic time warping.
+
+    chamfer(a, b) = (1/n) sum_i min_j |a_i - b_j| + (1/m) sum_j min_i |a_i - b_j|,
+    the mean distance from each point of a to the curve b plus the same from b to a. It ignores
+    the order of samples, so a curve and its reversal score 0. a : (n, d); b : (m, d).
+    """
+    a, b = _pair(a, b)
+    return float(cKDTree(b).query(a)[0].mean() + cKDTree(a).query(b)[0].mean())
+
+
+def swept_area(a: np.ndarray, b: np.ndarray) -> float:
+    """Swept error area between two planar curves (Khansari-Zadeh & Billard, LASA literature).
+
+    E = sum_{k=0}^{T-2} A(a_k, a_{k+1}, b_{k+1}, b_k), with A the area of the quadrilateral by the
+    shoelace formula, A(p1..p4) = |sum_{i} (x_i y_{i+1} - x_{i+1} y_i)| / 2 (indices mod 4).
+    Two parallel segments of length L at distance c give L c. a : (T, 2); b : (T', 2), resampled
+    to T samples in sample index if T' != T (see ``resample``). A quadrilateral whose sides cross
+    (the curves swap sides between k and k+1) counts the difference of its two lobes.
+    """
+    a, b = _pair(a, b)
+    if a.shape[1] != 2:
+        raise ValueError(f"swept area needs 2-D curves, got dimension {a.shape[1]}")
+    b = resample(b, a.shape[0])
+    quad = np.stack([a[:-1], a[1:], b[1:], b[:-1]], axis=1)  # (T-1, 4, 2)
+    x, y = quad[..., 0], quad[..., 1]
+    xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
+    return float(np.sum(np.abs(np.sum(x * yn - xn * y, axis=1)) / 2.0))
+
+
+def velocity_rmse(field_values: np.ndarray, demo_velocities: np.ndarray) -> float:
+    """sqrt( (1/K) sum_k |f(x_k) - v_k|^2 ).
+
+    field_values : array, shape (K, d), f evaluated at the demo positions;
+    demo_velocities : array, shape (K, d). Leading axes (e.g. (N, T, d)) are flattened.
+    """
+    f, v = _velocity_pair(field_values, demo_velocities)
+    return float(np.sqrt(np.mean(np.sum((f - v) ** 2, axis=1))))
+
+
+def cosine_error(field_values: np.ndarray, demo_velocities: np.ndarray,
+                 min_speed: float = 1e-3) -> float:
+    """Mean direction error (1/K) sum_k (1 - cos theta_k), cos theta_k = <f_k, v_k> / (|f_k| |v_k|).
+
+    Ranges over [0, 2]: 0 for the same direction, 1 for perpendicular (or a zero field value),
+    2 for opposite. Points where the demo is at rest, |v_k| <= min_speed max_j |v_j|, have no
+    direction and are left out (e.g. the samples at the goal); a demo that never moves gives nan.
+    Shapes as ``velocity_rmse``.
+    """
+    f, v = _velocity_pair(field_values, demo_velocities)
+    vn, fn = np.linalg.norm(v, axis=1), np.linalg.norm(f, axis=1)
+    keep = vn > min_speed * vn.max() if vn.max() > 0 else np.zeros(len(vn), bool)
+    if not keep.any():
+        return float("nan")
+    denom = np.maximum(fn[keep] * vn[keep], np.finfo(float).tiny)
+    cos = np.einsum("kd,kd->k", f[keep], v[keep]) / denom
+    return float(np.mean(1.0 - np.clip(cos, -1.0, 1.0)))
+
+
+def _velocity_pair(f: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    f, v = np.asarray(f, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    if f.shape != v.shape or f.ndim < 1:
+        raise ValueError(f"field values {f.shape} and demo velocities {v.shape} differ in shape")
+    return f.reshape(-1, f.shape[-1]), v.reshape(-1, v.shape[-1])
+
+
+def final_goal_distance(traj: np.ndarray, goal: np.ndarray) -> float | np.ndarray:
+    """|x_{T-1} - goal|: distance of a trajectory's last sample to the goal.
+
+    traj : array, shape (T, d) -> float, or (B, T, d) -> array, shape (B,); goal : shape (d,).
+    """
+    traj = np.asarray(traj, dtype=np.float64)
+    dist = np.linalg.norm(traj[..., -1, :] - np.asarray(goal, dtype=np.float64), axis=-1)
+    return float(dist) if traj.ndim == 2 else dist
+
+
+def convergence_rate(final_points: np.ndarray, goal: np.ndarray, radius: float) -> float:
+    """Fraction of rollouts whose final point lies within ``radius`` of the goal:
+    (1/B) #{b : |x_b - goal| <= radius}; non-finite points count as not converged.
+
+    final_points : array, shape (B, d); goal : array, shape (d,).
+    """
+    x = np.asarray(final_points, dtype=np.float64).reshape(-1, np.shape(goal)[-1])
+    dist = np.linalg.norm(x - np.asarray(goal, dtype=np.float64), axis=1)
+    return float(np.mean(np.isfinite(dist) & (dist <= radius)))
+
+
+def converged_fraction(field: VelocityField, lo: np.ndarray, hi: np.ndarray, n: int,
+                       horizon: float, radius: float, seed: int = 0, n_steps: int = 200,
+                       method: str = "rk4") -> float:
+    """Fraction of n starts drawn uniformly in the box [lo, hi] (seeded) whose rollout of the
+    field ends within ``radius`` of ``field.goal`` after ``horizon`` seconds.
+
+    Starts x0 ~ U(lo, hi), shape (n, d), from ``np.random.default_rng(seed)``; rollouts over
+    t = linspace(0, horizon, n_steps) with ``field.rollout``; then ``convergence_rate``.
+    lo, hi : array, shape (d,).
+    """
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    if lo.shape != (field.dim,) or hi.shape != (field.dim,):
+        raise ValueError(f"box corners must have shape ({field.dim},), got {lo.shape} and {hi.shape}")
+    x0 = np.random.default_rng(seed).uniform(lo, hi, size=(n, field.dim))
+    with np.errstate(all="ignore"):
+        y = field.rollout(x0, np.linspace(0.0, horizon, n_steps), method=method)
+    return convergence_rate(y[:, -1], field.goal, radius)
+
+
+_FIXED_STEP = ("euler", "midpoint", "heun2", "heun3", "rk4")
+PER_DEMO_METRICS: tuple[str, ...] = (
+    "rmse", "dtw", "chamfer_dtwd", "frechet", "swept_area", "velocity_rmse", "cosine_error",
+    "final_goal_distance",
+)
+
+
+def reproduce(field: VelocityField, demos: DemoSet, method: str = "rk4") -> np.ndarray:
+    """Roll the field out from each demo's start over that demo's time grid.
+
+    y_i = rollout(x_i[0], t_i), shape (T, d), for each demo i. Demos that share a time grid
+    (t_i - t_i[0] equal) are integrated in one batch by ``field.rollout``. Demos on different
+    uniform grids t_i[k] = t_i[0] + k h_i (LASA) are batched too when the field keeps the base
+    ``VelocityField.rollout`` and a fixed-step method: in sample units tau = (t - t_i[0]) / h_i each obeys
+    dx/dtau = h_i f(x), and a fixed-step solver with step 1 in tau takes exactly the steps it
+    would take with step h_i in t. Returns shape (N, T, d); a diverging rollout holds inf/nan.
+    """
+    from lfd.field import VelocityField as Base
+
+    rel = demos.t - demos.t[:, :1]
+    h = rel[:, 1:2]
+    k = np.arange(demos.n_samples)
+    uniform = np.allclose(rel, h * k, rtol=0.0, atol=1e-9 * float(rel.max()))
+    base_rollout = (type(field).rollout is Base.rollout
+                    and type(field).rollout_torch is Base.rollout_torch)
+    if uniform and method in _FIXED_STEP and base_rollout:
+        return _rollout_sample_units(field, demos.x[:, 0], h, demos.n_samples, method)
+    out = np.empty_like(demos.x)
+    todo = list(range(demos.n_demos))
+    with np.errstate(all="ignore"):
+        while todo:
+            same = [j for j in todo if np.array_equal(rel[j], rel[todo[0]])]
+            out[same] = field.rollout(demos.x[same, 0], rel[todo[0]], method=method)
+            todo = [j for j in todo if j not in same]
+    return out
+
+
+def _rollout_sample_units(field: VelocityField, x0: np.ndarray, h: np.ndarray, n: int,
+                          method: str) -> np.ndarray:
+    """x0 : (N, d) starts, h : (N, 1) sample intervals -> (N, n, d): dx_n/dtau = h f_n(x_n)."""
+    import torch
+    from torchdiffeq import odeint
+
+    hs = torch.from_numpy(np.ascontiguousarray(h, dtype=np.float64))
+    xn0 = field.norm.to_norm_torch(torch.from_numpy(np.asarray(x0, dtype=np.float64)))
+    with torch.no_grad():
+        yn = odeint(lambda _tau, y: field.module(y) * hs, xn0,
+                    torch.arange(n, dtype=torch.float64), method=method)
+    return field.norm.from_norm_torch(yn).permute(1, 0, 2).numpy()
+
+
+def evaluate(field: VelocityField, demos: DemoSet, dtw_step: int = 1,
+             method: str = "rk4") -> dict[str, Any]:
+    """Score the field's reproductions of the demos (``reproduce``) against the demos.
+
+    For demo i with positions x_i, shape (T, d), and reproduction y_i, shape (T, d): position
+    metrics compare y_i with x_i, velocity metrics compare f(x_i) with the demo's smoothed
+    velocity, and final_goal_distance is |y_i[T-1] - demos.goal|. ``swept_area`` is reported
+    for 2-D demos only. Returns {"per_demo": [{metric: float}] * N, "mean": {metric: float}};
+    a diverged rollout scores inf on every position metric, and the mean carries it along.
+    """
+    if demos.dim != field.dim:
+        raise ValueError(f"demos are {demos.dim}-D but the field is {field.dim}-D")
+    names = [m for m in PER_DEMO_METRICS if m != "swept_area" or demos.dim == 2]
+    ys = reproduce(field, demos, method)
+    with np.errstate(all="ignore"):
+        fs = field(demos.x)
+    rows: list[dict[str, float]] = []
+    for x, xd, y, f in zip(demos.x, demos.xd, ys, fs):
+        row = {"velocity_rmse": velocity_rmse(f, xd), "cosine_error": cosine_error(f, xd)}
+        if np.isfinite(y).all():
+            row.update(rmse=rmse(y, x), dtw=dtw(y, x, step=dtw_step), chamfer_dtwd=chamfer_dtwd(y, x),
+                       frechet=frechet(y, x), final_goal_distance=final_goal_distance(y, demos.goal))
+            if demos.dim == 2:
+                row["swept_area"] = swept_area(y, x)
+        else:
+            row.update({m: float("inf") for m in names if m not in row})
+        rows.append({m: float(row[m]) for m in names})
+    mean = {m: float(np.mean([r[m] for r in rows])) for m in names}
+    return {"per_demo": rows, "mean": mean}

@@ -1,0 +1,50 @@
+"""Forward kinematics of the tool frame with Pinocchio, lean enough for a 500 Hz control loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from robots.model import RobotModel
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class Kinematics:
+    """Tool pose and Jacobian at a joint configuration.
+
+    update(q) runs Pinocchio's computeFrameJacobian (forward kinematics of the tool's supporting joints included):
+    p(q) (3,), R(q) (3, 3) and J(q) (6, n) in LOCAL_WORLD_ALIGNED, i.e. [v; w] = J(q) qdot with v the tool point's
+    linear velocity and w its angular velocity, both in world axes. Getters return arrays valid until the next update
+    (do not modify them).
+    """
+
+    def __init__(self, robot: RobotModel) -> None:
+        self.model = robot.pin_model
+        self.data = self.model.createData()
+        self.frame_id = self.model.getFrameId(robot.ee_frame)
+        self._jac = np.zeros((6, self.model.nv))
+        self._pose: tuple[pin.SE3, np.ndarray, np.ndarray] | None = None
+
+    def update(self, q: np.ndarray) -> None:
+        """FK of the tool's supporting joints and tool Jacobian at q, shape (n,); the pose is read lazily."""
+        self._jac = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id, _LWA)
+        self._pose = None
+
+    def _placement(self) -> tuple[pin.SE3, np.ndarray, np.ndarray]:
+        if self._pose is None:
+            placement = pin.updateFramePlacement(self.model, self.data, self.frame_id)
+            self._pose = (placement, placement.translation, placement.rotation)
+        return self._pose
+
+    def ee_position(self) -> np.ndarray:
+        """Tool position in world, shape (3,)."""
+        return self._placement()[1]
+
+    def ee_rotation(self) -> np.ndarray:
+        """Tool orientation in world, shape (3, 3)."""
+        return self._placement()[2]
+
+    def ee_jacobian(self) -> np.ndarray:
+        """Tool Jacobian [v; w] = J qdot, shape (6, n), LOCAL_WORLD_ALIGNED."""
+        return self._jac

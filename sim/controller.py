@@ -1,0 +1,125 @@
+"""One control step: task velocity -> tool twist -> differential IK -> actuator command.
+
+Twist (world axes, LOCAL_WORLD_ALIGNED, rows vx vy vz wx wy wz) from a task velocity v, shape (d,):
+
+    v_lin = s A v - k_n n n^T (p - o)         (second term: 2-D task on a spatial arm; holds p on the plane)
+    w     = k_r log(R_ref R^T)                (spatial arm: holds the tool orientation R at R_ref)
+
+qdot = IK(q, twist) (``robots.DifferentialIK``), then the actuator command:
+
+* ``position`` servos (MuJoCo tau = kp (u - q) - kv qdot + gravity compensation), with
+  u = q + qdot_ref (kv + b) / kp, so tau = kv (qdot_ref - qdot) + b qdot_ref: a velocity servo
+  that also pays the joint's viscous damping b (``feedforward=True``, the default), or the plain
+  u = q + qdot_ref dt (``feedforward=False``; it lags and under-speeds, see scripts/bench_loop.py).
+* ``torque`` motors, computed torque with Pinocchio's RNEA:
+  tau = RNEA(q, qdot, qddot_ref + k_d (qdot_ref - qdot)) + b qdot, qddot_ref = (qdot_ref - qdot_ref_prev) / dt.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from robots import DifferentialIK, RobotModel
+from sim.errors import SimError
+from sim.placement import Placement
+
+ACTUATIONS: tuple[str, ...] = ("position", "torque")
+
+
+@dataclass(frozen=True)
+class Gains:
+    """plane : k_n (1/s); rotation : k_r (1/s); torque_kd : k_d (1/s) of computed torque."""
+
+    plane: float = 20.0
+    rotation: float = 10.0
+    torque_kd: float = 150.0
+
+
+class FieldController:
+    """Maps a task velocity to actuator commands for ``robot`` placed by ``placement``.
+
+    Call ``measure(q)`` (Pinocchio FK at the measured joints; returns the tool position p,
+    shape (3,)) and then ``command(q, qdot, v)`` with the task velocity v, shape (d,), at the
+    same q; it returns the actuator controls, shape (n,), in ``robot.mj_actuator_ids`` order.
+    """
+
+    def __init__(self, robot: RobotModel, placement: Placement, control_dt: float, ik: str = "dls",
+                 actuation: str = "position", rotation_ref: np.ndarray | None = None,
+                 gains: Gains = Gains(), feedforward: bool = True,
+                 mj_model: mujoco.MjModel | None = None) -> None:
+        if actuation not in ACTUATIONS:
+            raise SimError(f"unknown actuation '{actuation}'; known: {', '.join(ACTUATIONS)}")
+        if robot.planar and placement.dim != 2:
+            raise SimError(f"robot '{robot.name}' moves in a plane; it cannot follow a {placement.dim}-D field")
+        model = robot.mj_model if mj_model is None else mj_model
+        self.robot, self.placement, self.dt = robot, placement, float(control_dt)
+        self.actuation, self.gains, self.feedforward = actuation, gains, feedforward
+        rows = (0, 1) if robot.planar else None
+        self.ik = DifferentialIK(robot, backend=ik, rows=rows)
+        self.kin = self.ik.kinematics
+        self._pass_kin = ik == "dls"
+        self._origin = placement.origin.copy()
+        self._sA = np.ascontiguousarray(placement.scale * placement.axes)        # (3, d)
+        self._At_s = np.ascontiguousarray(placement.axes.T / placement.scale)     # (d, 3)
+        self._plane = placement.dim == 2 and not robot.planar
+        self._spatial = not robot.planar
+        self._kn_n = gains.plane * placement.normal
+        self._normal = placement.normal.copy()
+        self.rotation_ref = None if rotation_ref is None else np.asarray(rotation_ref, dtype=np.float64).copy()
+        self._twist = np.zeros(6)
+        dofs = robot.mj_dof_adr
+        self._damping = model.dof_damping[dofs].copy()
+        if actuation == "position":
+            acts = robot.mj_actuator_ids
+            kp = model.actuator_gainprm[acts, 0].copy()
+            kv = -model.actuator_biasprm[acts, 2].copy()
+            if (kp <= 0).any():
+                raise SimError(f"robot '{robot.name}' has no position servos (load it with actuation='position')")
+            self._lead = (kv + self._damping) / kp if feedforward else np.full(len(kp), self.dt)
+        else:
+            self._pin_data = robot.pin_model.createData()
+        self._qdot_prev = np.zeros(robot.n)
+
+    def reset(self, q: np.ndarray) -> None:
+        """Start a run at rest at q, shape (n,); sets R_ref to the tool orientation there if unset."""
+        self._qdot_prev[:] = 0.0
+        self.kin.update(np.asarray(q, dtype=np.float64))
+        if self.rotation_ref is None and self._spatial:
+            self.rotation_ref = self.kin.ee_rotation().copy()
+
+    def measure(self, q: np.ndarray) -> np.ndarray:
+        """FK at q, shape (n,): the tool position p, shape (3,) (a view valid until the next call)."""
+        self.kin.update(q)
+        return self.kin.ee_position()
+
+    def to_task(self, p: np.ndarray) -> np.ndarray:
+        """x = A^T (p - o) / s, shape (d,)."""
+        return self._At_s @ (p - self._origin)
+
+    def twist(self, v: np.ndarray) -> np.ndarray:
+        """The tool twist, shape (6,), for task velocity v, shape (d,), at the last measured pose."""
+        tw = self._twist
+        lin = self._sA @ v
+        if self._plane:
+            lin -= self._kn_n * (self._normal @ (self.kin.ee_position() - self._origin))
+        tw[:3] = lin
+        if self._spatial:
+            tw[3:] = self.gains.rotation * pin.log3(self.rotation_ref @ self.kin.ee_rotation().T)
+        return tw
+
+    def command(self, q: np.ndarray, qdot: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Actuator controls, shape (n,), for task velocity v, shape (d,), at the measured q, qdot."""
+        tw = self.twist(v)
+        if self._pass_kin:
+            qd_ref = self.ik.solve(q, tw, self.dt, kin=self.kin)
+        else:
+            qd_ref = self.ik.solve(q, tw, self.dt)
+        if self.actuation == "position":
+            return q + self._lead * qd_ref
+        acc = (qd_ref - self._qdot_prev) / self.dt + self.gains.torque_kd * (qd_ref - qdot)
+        self._qdot_prev[:] = qd_ref
+        return pin.rnea(self.robot.pin_model, self._pin_data, q, qdot, acc) + self._damping * qdot

@@ -1,0 +1,131 @@
+"""An experiment: one robot, one demonstration set and its placement, run under named perturbation
+scenarios with any learned field, scored (``sim.metrics``) and optionally filmed (``sim.render``).
+
+The run starts at the start of demo ``demo_index`` and lasts that demo's duration plus
+``settle_s``. Push metrics compare with the same run without the push, which is run (once per
+field) when needed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from lfd import DemoSet, VelocityField
+from robots import Kinematics, RobotModel
+from sim.controller import Gains
+from sim.metrics import run_metrics
+from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
+from sim.placement import Placement, base_position
+from sim.render import FPS, HEIGHT, WIDTH, render_rollout
+from sim.rollout import Rollout, execute
+from sim.task import ArmPhysics, make_environment
+
+SCENARIOS: tuple[str, ...] = ("none", "offset", "push", "goal", "noise")
+
+
+def scenario(name: str, seed: int = 0) -> tuple[Perturbation, ...]:
+    """The perturbations of a named scenario: ``none``; ``offset`` (start 2 cm off the demo's
+    start); ``push`` (20 N for 0.2 s on the tool's body at t = 1 s); ``goal`` (goal moved 2 cm);
+    ``noise`` (joint-velocity noise 0.01 rad/s per control step). Directions are drawn from seed."""
+    table: dict[str, tuple[Perturbation, ...]] = {
+        "none": (),
+        "offset": (StartOffset(distance_m=0.02, seed=seed),),
+        "push": (Push(force_n=20.0, duration_s=0.2, start_s=1.0, seed=seed),),
+        "goal": (GoalShift(distance_m=0.02, seed=seed),),
+        "noise": (JointVelocityNoise(std_rad_s=0.01, seed=seed),),
+    }
+    if name not in table:
+        raise ValueError(f"unknown scenario '{name}'; known: {', '.join(SCENARIOS)}")
+    return table[name]
+
+
+@dataclass
+class RunResult:
+    """A scored run: ``reference`` (K+1, 3) is the unperturbed field rollout mapped to world."""
+
+    learner: str
+    scenario: str
+    rollout: Rollout
+    reference: np.ndarray
+    metrics: dict[str, Any]
+
+
+class Experiment:
+    """Runs fields on ``robot`` for the demos ``demos`` (see module docstring)."""
+
+    def __init__(self, robot: RobotModel, demos: DemoSet, *, placement: Placement | None = None,
+                 plane: str = "auto", size_m: float | None = None, demo_index: int = 0,
+                 control_hz: float = 500.0, ik: str = "dls", actuation: str = "position",
+                 settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True) -> None:
+        self.robot, self.demos = robot, demos
+        self.placement = placement or Placement.auto(robot, demos.x, plane=plane, size_m=size_m)
+        self.rotation_ref = None
+        if not robot.planar:
+            kin = Kinematics(robot)
+            kin.update(robot.q_home)
+            self.rotation_ref = kin.ee_rotation().copy()
+        self.placement.check_reachable(robot, demos.x, rotation=self.rotation_ref)
+        self.demo_index = demo_index
+        self.demo_t = demos.t[demo_index] - demos.t[demo_index, 0]
+        self.demo_world = self.placement.to_world(demos.x[demo_index])
+        self.start = demos.x[demo_index, 0].copy()
+        self.duration_s = float(self.demo_t[-1]) + settle_s
+        self.options = dict(control_hz=control_hz, ik=ik, actuation=actuation, gains=gains,
+                            feedforward=feedforward)
+        self.physics = ArmPhysics.from_robot(robot)
+        self.base = base_position(robot)
+        self._unperturbed: dict[tuple, np.ndarray] = {}
+
+    def rollout(self, field: VelocityField, perturbations: tuple[Perturbation, ...] = (),
+                progress: bool = False, desc: str = "rollout") -> Rollout:
+        """One closed-loop run of ``field`` with ``perturbations``."""
+        env = make_environment(self.robot, self.placement, self.start, field.goal,
+                               duration_s=self.duration_s, perturbations=perturbations,
+                               rotation_ref=self.rotation_ref, physics=self.physics, **self.options)
+        return execute(env, field.point_fn(), progress=progress, desc=desc)
+
+    def reference(self, field: VelocityField, rollout: Rollout) -> np.ndarray:
+        """p_ref(t_k), shape (K+1, 3): the task-space rollout of the (goal-shifted) field from the
+        run's measured start, x_ref = dg + Phi_t(x0 - dg), mapped to world."""
+        shift = rollout.goal_task - np.asarray(field.goal)
+        x0 = self.placement.to_task(rollout.ee[0])
+        x = field.rollout((x0 - shift)[None], rollout.t)[0] + shift
+        return self.placement.to_world(x)
+
+    def run(self, field: VelocityField, name: str, perturbations: tuple[Perturbation, ...] | None = None,
+            seed: int = 0, progress: bool = False) -> RunResult:
+        """Run and score scenario ``name`` (its perturbations, or the ones given)."""
+        perts = scenario(name, seed) if perturbations is None else perturbations
+        ro = self.rollout(field, perts, progress, desc=f"{field.learner}/{name}")
+        unperturbed = None
+        if ro.push_window_s is not None:
+            rest = tuple(p for p in perts if not isinstance(p, Push))
+            key = (id(field), rest)
+            if key not in self._unperturbed:
+                self._unperturbed[key] = self.rollout(field, rest, progress, desc=f"{field.learner}/unpushed").ee
+            unperturbed = self._unperturbed[key]
+        ref = self.reference(field, ro)
+        metrics: dict[str, Any] = run_metrics(ro.t, ro.ee, ref, ro.goal_world, self.demo_t, self.demo_world,
+                                              unperturbed, ro.push_window_s)
+        metrics.update(joint_limit_violations=ro.joint_limit_violations, ik_limit_hits=ro.ik_limit_hits,
+                       realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us)
+        return RunResult(field.learner, name, ro, ref, metrics)
+
+    def render(self, result: RunResult, path: str | os.PathLike, width: int = WIDTH, height: int = HEIGHT,
+               fps: float = FPS) -> int:
+        """Write the run's MP4 (see ``sim.render.render_rollout``); returns the frame count."""
+        normal = None if self.placement.dim == 3 else self.placement.normal
+        return render_rollout(self.physics.model.ptr, result.rollout, self.demo_world, path, self.base,
+                              normal, width, height, fps)
+
+    def describe(self) -> dict[str, Any]:
+        """The experiment's settings, for the metrics JSON."""
+        opts = dict(self.options, gains=dataclasses.asdict(self.options["gains"]))
+        return {"robot": self.robot.name, "ee_frame": self.robot.ee_frame, "demos": self.demos.name,
+                "demo_index": self.demo_index, "duration_s": self.duration_s,
+                "placement": self.placement.to_dict(), **opts}

@@ -1,0 +1,67 @@
+"""Scores of one closed-loop run, all in metres and seconds of simulated time.
+
+* ``tracking_rmse_m``: RMSE between the measured tool path p(t_k) and the reference
+  p_ref(t_k) = placement(x_ref(t_k)), x_ref the task-space rollout of the same (goal-shifted)
+  field from the same start, unperturbed.
+* ``imitation_rmse_m`` / ``imitation_dtw_m``: the tool path sampled at the demonstration's times
+  against the demonstration mapped to world; the DTW is ``lfd.metrics.dtw`` (a sum of point
+  distances) divided by the demo's sample count, i.e. the mean aligned distance.
+* ``final_goal_error_m``: |p(T) - g|, g the (shifted) goal in world.
+* ``max_deviation_m`` / ``recovery_time_s`` (runs with a push): e(t) = |p(t) - p_u(t)|, p_u the
+  same run without the push. max_deviation = max_{t >= t0} e(t); recovery time = t_r - t0 with
+  t_r the first time after the push ends (t1) from which e stays <= 5 mm to the end of the run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lfd import metrics as lfd_metrics
+
+RECOVERY_TOLERANCE_M = 0.005
+
+
+def recovery_time(t: np.ndarray, deviation: np.ndarray, window: tuple[float, float],
+                  tol: float = RECOVERY_TOLERANCE_M) -> float | None:
+    """t_r - t0 (see module docstring); t : (K,), deviation : (K,). None if e never settles <= tol."""
+    t0, t1 = window
+    over = np.flatnonzero(deviation > tol)
+    after = np.flatnonzero(t >= t1)
+    if after.size == 0:
+        return None
+    last_over = over[-1] if over.size else -1
+    k = max(int(after[0]), int(last_over) + 1)
+    if k >= len(t):
+        return None
+    return float(t[k] - t0)
+
+
+def path_at(t_query: np.ndarray, t: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Linear interpolation of a path p : (K, 3) sampled at t : (K,) at times t_query : (M,)."""
+    tq = np.clip(t_query, t[0], t[-1])
+    return np.stack([np.interp(tq, t, p[:, j]) for j in range(p.shape[1])], axis=1)
+
+
+def run_metrics(t: np.ndarray, ee: np.ndarray, reference: np.ndarray, goal: np.ndarray,
+                demo_t: np.ndarray, demo: np.ndarray, unperturbed: np.ndarray | None = None,
+                push_window: tuple[float, float] | None = None) -> dict[str, float | None]:
+    """The path metrics of one run.
+
+    t : (K,) times; ee, reference : (K, 3) measured and reference tool paths (m, world);
+    goal : (3,); demo_t : (T,) and demo : (T, 3) the demonstration (m, world), times from 0;
+    unperturbed : (K, 3) the same run without its push (needed with ``push_window``).
+    """
+    at_demo = path_at(demo_t - demo_t[0] + t[0], t, ee)
+    out: dict[str, float | None] = {
+        "tracking_rmse_m": lfd_metrics.rmse(ee, reference),
+        "imitation_rmse_m": lfd_metrics.rmse(at_demo, demo),
+        "imitation_dtw_m": lfd_metrics.dtw(at_demo, demo) / len(demo),
+        "final_goal_error_m": float(np.linalg.norm(ee[-1] - goal)),
+    }
+    if push_window is not None:
+        if unperturbed is None:
+            raise ValueError("push metrics need the unperturbed run")
+        e = np.linalg.norm(ee - unperturbed, axis=1)
+        out["max_deviation_m"] = float(e[t >= push_window[0]].max())
+        out["recovery_time_s"] = recovery_time(t, e, push_window)
+    return out

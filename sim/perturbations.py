@@ -1,0 +1,163 @@
+"""Perturbations of a closed-loop run, each seeded and deterministic.
+
+* ``StartOffset``: the run starts ``distance_m`` away from the demonstration's start.
+* ``Push``: an external force F (N) on a body for ``duration_s`` from ``start_s``, through
+  ``xfrc_applied`` (world frame, at the body's centre of mass).
+* ``GoalShift``: the goal moves by ``distance_m``; the field is translated with it,
+  f_shifted(x) = f(x - dg), so its attractor is g + dg.
+* ``JointVelocityNoise``: every control step, qdot_j += N(0, std^2) on each arm joint.
+
+A random direction (when none is given) is drawn from the perturbation's own seed: in the task
+plane for a 2-D task, in space for a 3-D one. :func:`compile_schedule` turns a list of
+perturbations into the arrays the control loop reads, so the loop itself draws nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from sim.errors import SimError
+from sim.placement import Placement
+
+
+def _direction(direction: Sequence[float] | None, seed: int, placement: Placement) -> np.ndarray:
+    """A unit world vector, shape (3,): ``direction`` normalised, else a seeded random direction
+    in the task space mapped to world (in the task plane when d = 2)."""
+    if direction is not None:
+        u = np.asarray(direction, dtype=np.float64).reshape(3)
+        n = float(np.linalg.norm(u))
+        if not np.isfinite(n) or n == 0:
+            raise SimError(f"perturbation direction must be a non-zero 3-vector, got {list(direction)}")
+        return u / n
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=placement.dim)
+    return placement.axes @ (u / np.linalg.norm(u))
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """Base class; ``kind`` names the perturbation in metrics and file names."""
+
+    kind = "none"
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": self.kind, **asdict(self)}
+
+
+@dataclass(frozen=True)
+class StartOffset(Perturbation):
+    """Start ``distance_m`` (m) from the demonstration's start, along ``direction`` (world) or a
+    seeded random direction."""
+
+    distance_m: float = 0.02
+    direction: tuple[float, float, float] | None = None
+    seed: int = 0
+    kind = "offset"
+
+    def offset_world(self, placement: Placement) -> np.ndarray:
+        """The start displacement dp, shape (3,), in metres."""
+        return self.distance_m * _direction(self.direction, self.seed, placement)
+
+
+@dataclass(frozen=True)
+class Push(Perturbation):
+    """Force ``force_n`` (N) along ``direction`` (world; default seeded random) on MuJoCo body
+    ``body`` (default: the body carrying the tool site) during [start_s, start_s + duration_s)."""
+
+    force_n: float = 20.0
+    duration_s: float = 0.2
+    start_s: float = 1.0
+    direction: tuple[float, float, float] | None = None
+    body: str | None = None
+    seed: int = 0
+    kind = "push"
+
+    def force_world(self, placement: Placement) -> np.ndarray:
+        """The force vector F, shape (3,), in N."""
+        return self.force_n * _direction(self.direction, self.seed, placement)
+
+
+@dataclass(frozen=True)
+class GoalShift(Perturbation):
+    """Move the goal by ``distance_m`` (m) along ``direction`` (world) or a seeded random one."""
+
+    distance_m: float = 0.02
+    direction: tuple[float, float, float] | None = None
+    seed: int = 0
+    kind = "goal"
+
+    def offset_world(self, placement: Placement) -> np.ndarray:
+        """The goal displacement dg, shape (3,), in metres (projected on the task plane when d = 2)."""
+        u = _direction(self.direction, self.seed, placement)
+        return self.distance_m * placement.axes @ (placement.axes.T @ u)
+
+
+@dataclass(frozen=True)
+class JointVelocityNoise(Perturbation):
+    """Add N(0, std_rad_s^2) to every arm joint velocity at every control step."""
+
+    std_rad_s: float = 0.01
+    seed: int = 0
+    kind = "noise"
+
+
+@dataclass
+class Schedule:
+    """What the control loop applies, precomputed.
+
+    start_offset_task : array, shape (d,) -- added to the start point (task units)
+    goal_offset_task : array, shape (d,)  -- the field's translation dg (task units)
+    push_body : int                       -- MuJoCo body id of the push (-1: none)
+    push_force : array, shape (6,)        -- xfrc_applied row during the push (force, torque)
+    push_steps : tuple[int, int]          -- control steps [k0, k1) of the push
+    push_window_s : tuple[float, float] or None -- the same window in seconds of sim time
+    qvel_noise : array, shape (K, n) or None -- noise added to arm joint velocities per step
+    """
+
+    start_offset_task: np.ndarray
+    goal_offset_task: np.ndarray
+    push_body: int = -1
+    push_force: np.ndarray | None = None
+    push_steps: tuple[int, int] = (-1, -1)
+    push_window_s: tuple[float, float] | None = None
+    qvel_noise: np.ndarray | None = None
+
+
+def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement, body_ids: dict[str, int],
+                     default_body: str, n_joints: int, n_steps: int, control_dt: float) -> Schedule:
+    """Turn perturbations into a :class:`Schedule` for a run of ``n_steps`` control steps of
+    ``control_dt`` s. ``body_ids`` maps MuJoCo body names to ids (for the push)."""
+    d = placement.dim
+    sched = Schedule(np.zeros(d), np.zeros(d))
+    pushes = [p for p in perturbations if isinstance(p, Push)]
+    if len(pushes) > 1:
+        raise SimError("only one push per run is supported")
+    for p in perturbations:
+        if isinstance(p, StartOffset):
+            sched.start_offset_task = sched.start_offset_task + placement.offset_to_task(p.offset_world(placement))
+        elif isinstance(p, GoalShift):
+            sched.goal_offset_task = sched.goal_offset_task + placement.offset_to_task(p.offset_world(placement))
+        elif isinstance(p, Push):
+            name = p.body or default_body
+            if name not in body_ids:
+                raise SimError(f"push: unknown body '{name}'; bodies: {', '.join(sorted(body_ids))}")
+            if p.duration_s <= 0 or p.start_s < 0:
+                raise SimError("push: start_s must be >= 0 and duration_s > 0")
+            k0 = int(round(p.start_s / control_dt))
+            k1 = k0 + max(1, int(round(p.duration_s / control_dt)))
+            sched.push_body = body_ids[name]
+            sched.push_force = np.concatenate([p.force_world(placement), np.zeros(3)])
+            sched.push_steps = (k0, k1)
+            sched.push_window_s = (k0 * control_dt, k1 * control_dt)
+        elif isinstance(p, JointVelocityNoise):
+            if p.std_rad_s < 0:
+                raise SimError("noise: std_rad_s must be >= 0")
+            rng = np.random.default_rng(p.seed)
+            noise = rng.normal(0.0, p.std_rad_s, (n_steps, n_joints))
+            sched.qvel_noise = noise if sched.qvel_noise is None else sched.qvel_noise + noise
+        elif type(p) is not Perturbation:
+            raise SimError(f"unknown perturbation {p!r}")
+    return sched

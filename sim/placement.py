@@ -1,0 +1,204 @@
+"""Placement: where the task space (the demos' 2-D or 3-D user coordinates) lies on the robot.
+
+A task point x, shape (d,), maps to the world point
+
+    p = o + s A x,          A = R[:, :d]  (the first d task axes in world coordinates)
+
+and back by x = A^T (p - o) / s (exact on the task plane; the normal component is dropped).
+A task velocity v maps to the world velocity s A v. For d = 2 the plane normal is n = R[:, 2].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from robots import Kinematics, RobotModel, solve_position_ik
+from sim.errors import PlacementError
+
+PLANES: tuple[str, ...] = ("auto", "horizontal", "vertical")
+SIZE_FRACTION = 0.15     # default path size: this fraction of the robot's reach (Panda: ~13 cm)
+REACH_MARGIN_M = 0.04    # reachability is checked this far around the path (offsets, pushes)
+JOINT_MARGIN = 0.05      # ... with every joint this fraction of its range away from its limits
+IK_TOLERANCE_M = 1e-3    # ... and a position error below this
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Affine map from task space onto the robot's workspace.
+
+    origin : array, shape (3,)     -- world position (m) of the task origin
+    rotation : array, shape (3, 3) -- columns: task x, y, z axes in world coordinates
+    scale : float                  -- metres per user unit
+    dim : int                      -- task dimension d (2 or 3)
+    """
+
+    origin: np.ndarray
+    rotation: np.ndarray
+    scale: float
+    dim: int
+
+    def __post_init__(self) -> None:
+        r = np.asarray(self.rotation, dtype=np.float64)
+        if r.shape != (3, 3) or not np.allclose(r.T @ r, np.eye(3), atol=1e-9) or np.linalg.det(r) < 0:
+            raise PlacementError("placement rotation must be a proper 3x3 rotation matrix")
+        if not self.scale > 0:
+            raise PlacementError(f"placement scale must be positive, got {self.scale}")
+        if self.dim not in (2, 3):
+            raise PlacementError(f"placement dimension must be 2 or 3, got {self.dim}")
+        object.__setattr__(self, "origin", np.asarray(self.origin, dtype=np.float64).reshape(3))
+        object.__setattr__(self, "rotation", r)
+        object.__setattr__(self, "scale", float(self.scale))
+
+    @property
+    def axes(self) -> np.ndarray:
+        """A = R[:, :d], shape (3, d): task axes in world coordinates."""
+        return self.rotation[:, :self.dim]
+
+    @property
+    def normal(self) -> np.ndarray:
+        """n = R[:, 2], shape (3,): the plane normal (d = 2) or the task z axis (d = 3)."""
+        return self.rotation[:, 2]
+
+    def to_world(self, x: np.ndarray) -> np.ndarray:
+        """p = o + s A x; x : array, shape (..., d) -> shape (..., 3)."""
+        return self.origin + self.scale * np.asarray(x, dtype=np.float64) @ self.axes.T
+
+    def to_task(self, p: np.ndarray) -> np.ndarray:
+        """x = A^T (p - o) / s; p : array, shape (..., 3) -> shape (..., d)."""
+        return (np.asarray(p, dtype=np.float64) - self.origin) @ self.axes / self.scale
+
+    def velocity_to_world(self, v: np.ndarray) -> np.ndarray:
+        """s A v; v : array, shape (..., d) -> shape (..., 3)."""
+        return self.scale * np.asarray(v, dtype=np.float64) @ self.axes.T
+
+    def offset_to_task(self, offset_m: np.ndarray) -> np.ndarray:
+        """A^T dp / s: a world displacement dp (m), shape (..., 3), as a task displacement (..., d)."""
+        return np.asarray(offset_m, dtype=np.float64) @ self.axes / self.scale
+
+    def to_dict(self) -> dict:
+        return {"origin": self.origin.tolist(), "rotation": self.rotation.tolist(),
+                "scale_m_per_unit": self.scale, "dim": self.dim}
+
+    # ------------------------------------------------------------------ defaults
+    @classmethod
+    def auto(cls, robot: RobotModel, points: np.ndarray, plane: str = "auto",
+             size_m: float | None = None) -> "Placement":
+        """The default placement of task points, shape (..., d), on ``robot``.
+
+        The bounding box of the points is centred on the tool position at ``q_home`` (a
+        well-conditioned posture well inside the workspace) and scaled so its larger side is
+        ``size_m`` (default ``SIZE_FRACTION`` of the robot's reach). A planar robot gets its own
+        plane (world x, y). A 2-D path on a spatial robot goes on a horizontal plane (task x, y ->
+        world x, y; ``plane="auto"``) or on a vertical plane facing the robot (task x -> sideways,
+        task y -> up). A 3-D path keeps the world axes.
+        """
+        if plane not in PLANES:
+            raise PlacementError(f"unknown plane '{plane}'; known: {', '.join(PLANES)}")
+        pts = np.asarray(points, dtype=np.float64)
+        d = int(pts.shape[-1])
+        pts = pts.reshape(-1, d)
+        if robot.planar and d != 2:
+            raise PlacementError(f"robot '{robot.name}' moves in a plane; it cannot follow a {d}-D field")
+        lo, hi = pts.min(0), pts.max(0)
+        extent = float(np.max(hi - lo))
+        if not np.isfinite(extent) or extent <= 0:
+            raise PlacementError("cannot place a path with zero extent")
+        kin = Kinematics(robot)
+        kin.update(robot.q_home)
+        home = kin.ee_position().copy()
+        base = base_position(robot)
+        if size_m is None:
+            size_m = SIZE_FRACTION * reach(robot)
+        rotation = np.eye(3)
+        if d == 2 and not robot.planar and plane == "vertical":
+            n = home - base
+            n[2] = 0.0
+            if np.linalg.norm(n) < 1e-6:
+                n = np.array([1.0, 0.0, 0.0])
+            n /= np.linalg.norm(n)
+            ey = np.array([0.0, 0.0, 1.0])
+            rotation = np.column_stack([np.cross(ey, n), ey, n])
+        scale = float(size_m) / extent
+        center = (lo + hi) / 2
+        origin = home - scale * rotation[:, :d] @ center
+        return cls(origin, rotation, scale, d)
+
+    # ------------------------------------------------------------------ reachability
+    def check_reachable(self, robot: RobotModel, points: np.ndarray, rotation: np.ndarray | None = None,
+                        margin_m: float = REACH_MARGIN_M, n_path: int = 48) -> None:
+        """Raise PlacementError unless the path and a margin around it are reachable.
+
+        Checked points: ``n_path`` samples of the task points, shape (..., d) (in order, warm
+        started one from the next, as the controller would move), and the corners and edge
+        midpoints of their bounding box grown by ``margin_m``. Each must be reached by
+        ``solve_position_ik`` (with the tool ``rotation`` held, if given) to ``IK_TOLERANCE_M``,
+        with every joint ``JOINT_MARGIN`` of its range inside its limits.
+        """
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, self.dim)
+        if not np.isfinite(pts).all():
+            raise PlacementError("path has NaN or inf points")
+        idx = np.unique(np.linspace(0, len(pts) - 1, min(n_path, len(pts))).round().astype(int))
+        lo, hi = pts.min(0), pts.max(0)
+        grow = margin_m / self.scale
+        ring = _box_probe_points(lo - grow, hi + grow)
+        q = robot.q_home.copy()
+        span = robot.q_max - robot.q_min
+        qlo, qhi = robot.q_min + JOINT_MARGIN * span, robot.q_max - JOINT_MARGIN * span
+        for k, x in enumerate(np.concatenate([pts[idx], ring])):
+            on_path = k < len(idx)
+            p = self.to_world(x)
+            q0 = q if on_path else robot.q_home
+            qs, err = solve_position_ik(robot, p, rotation, q0=q0)
+            where = "path point" if on_path else f"point {margin_m * 100:.0f} cm around the path"
+            if not err <= IK_TOLERANCE_M:
+                raise PlacementError(
+                    f"placement unreachable on '{robot.name}': {where} {_fmt(p)} m is missed by "
+                    f"{err * 1e3:.1f} mm (use a smaller --scale or another --plane)")
+            bad = np.flatnonzero((qs < qlo) | (qs > qhi))
+            if bad.size:
+                j = int(bad[0])
+                raise PlacementError(
+                    f"placement unreachable on '{robot.name}': {where} {_fmt(p)} m needs joint "
+                    f"'{robot.arm_joints[j]}' at {qs[j]:.2f} rad, within {JOINT_MARGIN:.0%} of its limits "
+                    f"[{robot.q_min[j]:.2f}, {robot.q_max[j]:.2f}]")
+            if on_path:
+                q = qs
+
+
+def reach(robot: RobotModel, samples: int = 256, seed: int = 0) -> float:
+    """The robot's reach (m): the largest distance from the first joint to the tool over
+    ``samples`` joint configurations drawn uniformly within the limits (seeded)."""
+    rng = np.random.default_rng(seed)
+    kin = Kinematics(robot)
+    base = base_position(robot)
+    best = 0.0
+    for q in rng.uniform(robot.q_min, robot.q_max, (samples, len(robot.q_min))):
+        kin.update(q)
+        best = max(best, float(np.linalg.norm(kin.ee_position() - base)))
+    return best
+
+
+def base_position(robot: RobotModel) -> np.ndarray:
+    """World position, shape (3,), of the first arm joint at ``q_home``."""
+    import pinocchio as pin
+
+    data = robot.pin_model.createData()
+    pin.forwardKinematics(robot.pin_model, data, robot.q_home)
+    return data.oMi[1].translation.copy()
+
+
+def _box_probe_points(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Corners and edge midpoints of the box [lo, hi], shape (K, d)."""
+    d = len(lo)
+    levels = np.stack([lo, (lo + hi) / 2, hi])           # (3, d)
+    grid = np.stack(np.meshgrid(*[levels[:, j] for j in range(d)], indexing="ij"), -1).reshape(-1, d)
+    center = (lo + hi) / 2
+    on_surface = np.any(np.isclose(grid, lo) | np.isclose(grid, hi), axis=1)
+    keep = on_surface & (np.sum(np.isclose(grid, center), axis=1) <= 1)
+    return grid[keep]
+
+
+def _fmt(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{v:.3f}" for v in p) + ")"

@@ -1,0 +1,36 @@
+"""Shared fixtures: small hand-built velocity fields with known behaviour."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import pytest
+import torch
+
+from lfd.field import VelocityField
+from lfd.normalization import Normalization
+
+
+def linear_field(A: np.ndarray, goal: np.ndarray, scale: float = 1.0,
+                 history: dict | None = None) -> VelocityField:
+    """The field f(x) = A (x - goal): a torch Linear module, no bias, on normalised coordinates
+    (with a scalar scale, f_n(x_n) = A x_n gives the same A in user units)."""
+    d = len(goal)
+    module = torch.nn.Linear(d, d, bias=False)
+    with torch.no_grad():
+        module.weight.copy_(torch.as_tensor(np.asarray(A, dtype=np.float64)))
+    norm = Normalization(goal=np.asarray(goal, dtype=np.float64), scale=scale)
+    return VelocityField(module, norm, "linear", {}, history or {"loss": [1.0, 0.1, 0.01]})
+
+
+@pytest.fixture
+def make_linear_field() -> Callable[..., VelocityField]:
+    """The ``linear_field`` builder, for tests that need fields of their own."""
+    return linear_field
+
+
+@pytest.fixture
+def spiral_field_2d() -> VelocityField:
+    """f(x) = A (x - g), A = [[-1, 3], [-3, -1]], g = (0.5, -0.25): a stable focus, |x - g| ~ e^{-t}."""
+    return linear_field(np.array([[-1.0, 3.0], [-3.0, -1.0]]), np.array([0.5, -0.25]), scale=2.0)

@@ -1,0 +1,258 @@
+"""Demo sets (generators, LASA, files, validation) and model files (round trip, corruption)."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import lfd
+from lfd.demos import DemoSet, lasa, load_demos, load_file, save_file, spiral, spiral3d
+from lfd.errors import DemoError, ModelError
+from lfd.modelfile import FORMAT_VERSION, load_payload, save_payload
+
+
+# ---------------------------------------------------------------- generators and LASA
+
+def test_spiral_shapes_goal_and_determinism() -> None:
+    d = spiral(n_demos=4, n_samples=150, seed=3)
+    assert d.x.shape == (4, 150, 2) and d.t.shape == (4, 150) and d.xd.shape == (4, 150, 2)
+    assert np.allclose(d.x[:, -1], 0.0) and np.allclose(d.goal, 0.0)
+    assert np.array_equal(d.x, spiral(n_demos=4, n_samples=150, seed=3).x)
+    assert not np.allclose(d.x, spiral(n_demos=4, n_samples=150, seed=4).x)
+    r0 = np.linalg.norm(d.x[:, 0], axis=1)
+    assert np.all((r0 > 0.85) & (r0 < 1.15))  # radius 1, spread 10%, noise 1%
+
+
+def test_spiral3d_shapes_goal_and_determinism() -> None:
+    goal = (0.2, -0.1, 0.5)
+    d = spiral3d(n_demos=3, n_samples=120, goal=goal, seed=1)
+    assert d.x.shape == (3, 120, 3) and d.dim == 3
+    assert np.allclose(d.goal, goal) and np.allclose(d.x[:, -1], goal)
+    assert np.array_equal(d.x, spiral3d(n_demos=3, n_samples=120, goal=goal, seed=1).x)
+    assert np.all(d.x[:, 0, 2] - goal[2] > 0.8)  # starts about one height above the goal
+    with pytest.raises(DemoError, match="3 coordinates"):
+        spiral3d(goal=(0.0, 0.0))
+
+
+def test_every_lasa_shape_loads() -> None:
+    assert len(lfd.LASA_SHAPES) == 30
+    for name in lfd.LASA_SHAPES:
+        d = lasa(name)
+        assert d.x.shape == (7, 1000, 2), name
+        assert d.name == f"lasa:{name}"
+        assert np.isfinite(d.xd).all()
+    with pytest.raises(DemoError, match="lasa:Nope: unknown LASA shape"):
+        lasa("Nope")
+
+
+def test_load_demos_specs() -> None:
+    assert load_demos("spiral").dim == 2
+    assert load_demos("spiral3d").dim == 3
+    assert load_demos("lasa:Angle").n_demos == 7
+    with pytest.raises(DemoError, match="unknown demo spec"):
+        load_demos("spirale")
+
+
+# ---------------------------------------------------------------- files
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+@pytest.mark.parametrize("make", [lambda: spiral(n_demos=3, n_samples=40), lambda: spiral3d(n_demos=2, n_samples=30)])
+def test_file_round_trip(tmp_path: Path, suffix: str, make) -> None:  # type: ignore[no-untyped-def]
+    d = make()
+    path = tmp_path / f"demos{suffix}"
+    save_file(d, path)
+    back = load_file(path)
+    assert np.array_equal(back.x, d.x) and np.array_equal(back.t, d.t)  # repr() keeps every bit
+    assert back.name == str(path)
+    assert np.array_equal(load_demos(str(path)).x, d.x)
+
+
+def test_csv_demos_of_different_lengths_are_resampled(tmp_path: Path) -> None:
+    rows = ["demo,t,x1,x2"]
+    for i, T in enumerate((20, 35)):
+        t = np.linspace(0, 1, T)
+        rows += [f"{i},{tk},{1 - tk},{(1 - tk) * 2}" for tk in t]
+    path = tmp_path / "two.csv"
+    path.write_text("\n".join(rows) + "\n")
+    d = load_file(path)
+    assert d.x.shape == (2, 35, 2)
+    assert np.allclose(d.x[0], d.x[1])  # both are the same straight line
+
+
+def _write_npz(path: Path, **arrays: np.ndarray) -> Path:
+    np.savez(path, **arrays)
+    return path
+
+
+def _csv(path: Path, x: np.ndarray, t: np.ndarray | None = None) -> Path:
+    """x : (N, T, d) -> CSV in the demo,t,x1..xd format."""
+    N, T, d = x.shape
+    t = np.linspace(0, 1, T) if t is None else t
+    lines = ["demo,t," + ",".join(f"x{j + 1}" for j in range(d))]
+    lines += [f"{i},{t[k]}," + ",".join(str(v) for v in x[i, k]) for i in range(N) for k in range(T)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _good(N: int = 2, T: int = 20, d: int = 2) -> np.ndarray:
+    """N straight lines to the origin, shape (N, T, d)."""
+    s = np.linspace(1, 0, T)[:, None]
+    return np.stack([s * (np.arange(d) + 1 + i) for i in range(N)])
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+@pytest.mark.parametrize("case,pattern", [
+    ("nan", "NaN or inf in demo 1"),
+    ("inf", "NaN or inf in demo 1"),
+    ("short", "at least 10 are needed"),
+    ("time", "time is not increasing in demo"),
+    ("goal", "do not end near a common goal"),
+])
+def test_validation_errors_name_file_and_problem(tmp_path: Path, suffix: str, case: str,
+                                                 pattern: str) -> None:
+    x, t = _good(), np.linspace(0, 1, 20)
+    if case == "nan":
+        x[1, 5, 0] = np.nan
+    elif case == "inf":
+        x[1, 3, 1] = np.inf
+    elif case == "short":
+        x, t = x[:, :9], t[:9]
+    elif case == "time":
+        t = t.copy()
+        t[7] = t[6]
+    elif case == "goal":
+        x[1] += [0.5, 0.0]
+    path = tmp_path / f"bad{suffix}"
+    if suffix == ".csv":
+        _csv(path, x, t)
+    else:
+        _write_npz(path, t=t, x=x)
+    with pytest.raises(DemoError) as e:
+        load_file(path)
+    assert str(e.value).startswith(str(path)) and pattern in str(e.value)
+
+
+def test_csv_specific_errors(tmp_path: Path) -> None:
+    path = _csv(tmp_path / "mixed.csv", _good())
+    lines = path.read_text().splitlines()
+    lines[5] += ",0.5"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DemoError, match=r"mixed\.csv: line 6 has 5 columns, expected 4 \(mixed dimensions\)"):
+        load_file(path)
+    (tmp_path / "head.csv").write_text("id,time,x,y\n0,0,1,1\n")
+    with pytest.raises(DemoError, match=r"head\.csv: header must be demo,t,x1\.\.xd"):
+        load_file(tmp_path / "head.csv")
+    (tmp_path / "word.csv").write_text("demo,t,x1,x2\n0,0,one,1\n")
+    with pytest.raises(DemoError, match=r"word\.csv: line 2 has a value that is not a number"):
+        load_file(tmp_path / "word.csv")
+    (tmp_path / "empty.csv").write_text("")
+    with pytest.raises(DemoError, match=r"empty\.csv: empty file"):
+        load_file(tmp_path / "empty.csv")
+    with pytest.raises(DemoError, match=r"demos must be 2-D or 3-D, got d=1"):
+        load_file(_csv(tmp_path / "one.csv", _good(d=1)))
+
+
+def test_npz_shape_errors(tmp_path: Path) -> None:
+    x = _good()
+    cases = {
+        "flat.npz": ({"t": np.linspace(0, 1, 20), "x": x[0]}, r"x must have shape \(N, T, d\), got \(20, 2\)"),
+        "len.npz": ({"t": np.linspace(0, 1, 19), "x": x}, "t has 19 samples but x has 20"),
+        "t2d.npz": ({"t": np.zeros((3, 20)), "x": x}, r"t must have shape \(T,\) or \(2, 20\)"),
+        "nox.npz": ({"t": np.linspace(0, 1, 20)}, r"missing array\(s\) x"),
+    }
+    for name, (arrays, pattern) in cases.items():
+        path = _write_npz(tmp_path / name, **arrays)
+        with pytest.raises(DemoError, match=f"{name.replace('.', r'[.]')}: {pattern}"):
+            load_file(path)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip file at all")
+    with pytest.raises(DemoError, match=r"junk\.npz: cannot read"):
+        load_file(tmp_path / "junk.npz")
+
+
+def test_missing_file_and_unknown_suffix(tmp_path: Path) -> None:
+    with pytest.raises(DemoError, match=r"nowhere\.csv: no such file"):
+        load_file(tmp_path / "nowhere.csv")
+    (tmp_path / "demos.txt").write_text("demo,t,x1,x2\n")
+    with pytest.raises(DemoError, match=r"demos\.txt: unknown demo file type '\.txt'"):
+        load_file(tmp_path / "demos.txt")
+    with pytest.raises(DemoError, match="unknown demo file type"):
+        save_file(spiral(), tmp_path / "demos.json")
+
+
+def test_demoset_validation_in_memory() -> None:
+    x = _good()
+    with pytest.raises(DemoError, match=r"mine: 9 samples per demo, at least 10"):
+        DemoSet(np.linspace(0, 1, 9), x[:, :9], name="mine")
+    with pytest.raises(DemoError, match=r"mine: times have shape"):
+        DemoSet(np.zeros((3, 20)), x, name="mine")
+    one = DemoSet(np.linspace(0, 1, 20), x[0])  # a single (T, d) demo is promoted to (1, T, d)
+    assert one.x.shape == (1, 20, 2)
+    assert one.subset([0]).x.shape == (1, 20, 2)
+    lo, hi = DemoSet(np.linspace(0, 1, 20), x).bounds(grow=0.5)
+    assert np.allclose(lo, [-0.5, -0.75]) and np.allclose(hi, [2.5, 3.75])
+
+
+# ---------------------------------------------------------------- model files
+
+def _payload() -> dict:
+    g = torch.Generator().manual_seed(0)
+    return {"learner": "node", "dim": 2, "config": {"hidden": [8, 8], "lr": 1e-3},
+            "normalization": {"goal": [0.0, 1.0], "scale": 2.5},
+            "state_dict": {"w": torch.randn(8, 2, generator=g, dtype=torch.float64),
+                           "b": torch.randn(8, generator=g, dtype=torch.float64)},
+            "history": {"loss": [1.0, 0.5], "train_time_s": 0.1}}
+
+
+def test_model_payload_round_trip_is_bit_for_bit(tmp_path: Path) -> None:
+    payload = _payload()
+    save_payload(payload, tmp_path / "a.pt")
+    back = load_payload(tmp_path / "a.pt")
+    assert back["format_version"] == FORMAT_VERSION
+    for k, v in payload["state_dict"].items():
+        assert torch.equal(back["state_dict"][k], v) and back["state_dict"][k].dtype == torch.float64
+    assert back["config"] == payload["config"] and back["history"] == payload["history"]
+    save_payload({k: v for k, v in back.items() if k != "format_version"}, tmp_path / "b.pt")
+    assert (tmp_path / "a.pt").read_bytes() == (tmp_path / "b.pt").read_bytes()
+    assert not list(tmp_path.glob(".*.tmp"))  # the atomic write left no temporary file
+
+
+def test_field_save_round_trip(tmp_path: Path, spiral_field_2d) -> None:  # type: ignore[no-untyped-def]
+    spiral_field_2d.save(tmp_path / "f.pt")
+    back = load_payload(tmp_path / "f.pt")
+    assert back["learner"] == "linear" and back["dim"] == 2
+    assert torch.equal(back["state_dict"]["weight"], spiral_field_2d.module.weight)
+    assert back["normalization"] == spiral_field_2d.norm.to_dict()
+
+
+class _Evil:
+    def __reduce__(self):  # type: ignore[no-untyped-def]
+        return (print, ("this must never run",))
+
+
+def test_bad_model_files(tmp_path: Path) -> None:
+    with pytest.raises(ModelError, match=r"none\.pt: no such model file"):
+        load_payload(tmp_path / "none.pt")
+    (tmp_path / "junk.pt").write_bytes(b"\x00garbage" * 100)
+    with pytest.raises(ModelError, match=r"junk\.pt: not a readable model file"):
+        load_payload(tmp_path / "junk.pt")
+    save_payload(_payload(), tmp_path / "cut.pt")
+    data = (tmp_path / "cut.pt").read_bytes()
+    (tmp_path / "cut.pt").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ModelError, match=r"cut\.pt: not a readable model file"):
+        load_payload(tmp_path / "cut.pt")
+    torch.save({"learner": "node"}, tmp_path / "keys.pt")
+    with pytest.raises(ModelError, match=r"keys\.pt: not a model file \(missing keys\)"):
+        load_payload(tmp_path / "keys.pt")
+    torch.save({**_payload(), "format_version": 99}, tmp_path / "v99.pt")
+    with pytest.raises(ModelError, match=r"v99\.pt: model format version 99 is not supported"):
+        load_payload(tmp_path / "v99.pt")
+    (tmp_path / "evil.pt").write_bytes(pickle.dumps({"x": _Evil()}, protocol=2))
+    with pytest.raises(ModelError, match=r"evil\.pt: not a readable model file"):
+        load_payload(tmp_path / "evil.pt")
+    torch.save({**_payload(), "format_version": FORMAT_VERSION, "learner": "nope"}, tmp_path / "who.pt")
+    with pytest.raises(ModelError, match=r"who\.pt: unknown learner 'nope'"):
+        lfd.load(str(tmp_path / "who.pt"))

@@ -199,8 +199,8 @@ def load_robot(spec: str, ee_frame: str | None = None, actuation: str = "positio
     frame_id = _frame_id(pin_model, source.ee_frame)
     joints = tuple(pin_model.names[1:])
 
+    sources.drop_joint_couplings(mj_spec, joints + tuple(source.locked))
     sources.lock_mujoco_joints(mj_spec, source.locked)
-    sources.drop_joint_couplings(mj_spec, joints)
     for name in joints:
         joint = mj_spec.joint(name)
         if joint is None:

@@ -145,39 +145,25 @@ def pinocchio_model(path: Path, kind: str, locked: dict[str, float]) -> pin.Mode
 
 
 def lock_mujoco_joints(spec: mujoco.MjSpec, locked: dict[str, float]) -> None:
-    """Remove each locked joint from the spec, moving its body to the locked value (as Pinocchio's reduced model)."""
-    names = set(locked)
-    for eq in list(spec.equalities):
-        if eq.type == mujoco.mjtEq.mjEQ_JOINT and {eq.name1, eq.name2} & names:
-            spec.delete(eq)
+    """Remove each locked slide joint from the spec, moving its body by value * axis (as Pinocchio's reduced model).
+    Joint couplings on them must be dropped first (drop_joint_couplings)."""
     for name, value in locked.items():
         joint = spec.joint(name)
         if joint is None:
             raise RobotError(f"MuJoCo model has no joint '{name}' to lock")
+        if joint.type != mujoco.mjtJoint.mjJNT_SLIDE:
+            raise RobotError(f"cannot lock joint '{name}': only slide joints (gripper fingers) are locked")
         body = joint.parent
         axis = np.asarray(joint.axis, dtype=float) / np.linalg.norm(joint.axis)
         rot = np.zeros(9)
         mujoco.mju_quat2Mat(rot, np.asarray(body.quat, dtype=float))
-        rot = rot.reshape(3, 3)
-        if joint.type == mujoco.mjtJoint.mjJNT_SLIDE:
-            body.pos = np.asarray(body.pos) + rot @ (axis * value)
-        elif joint.type == mujoco.mjtJoint.mjJNT_HINGE:
-            turn = np.zeros(4)
-            mujoco.mju_axisAngle2Quat(turn, axis, value)
-            anchor = np.asarray(joint.pos, dtype=float)
-            quat = np.zeros(4)
-            mujoco.mju_mulQuat(quat, np.asarray(body.quat, dtype=float), turn)
-            turn_mat = np.zeros(9)
-            mujoco.mju_quat2Mat(turn_mat, turn)
-            body.pos = np.asarray(body.pos) + rot @ (anchor - turn_mat.reshape(3, 3) @ anchor)
-            body.quat = quat
-        else:
-            raise RobotError(f"cannot lock joint '{name}': only hinge and slide joints")
+        body.pos = np.asarray(body.pos) + rot.reshape(3, 3) @ (axis * value)
         spec.delete(joint)
 
 
 def drop_joint_couplings(spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
-    """Remove joint equality constraints (e.g. URDF <mimic>) on arm joints: Pinocchio treats them as independent."""
+    """Remove joint equality constraints (e.g. URDF <mimic>) touching ``joints``: Pinocchio treats arm joints as
+    independent, and locked joints disappear."""
     names = set(joints)
     for eq in list(spec.equalities):
         if eq.type == mujoco.mjtEq.mjEQ_JOINT and {eq.name1, eq.name2} & names:

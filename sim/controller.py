@@ -39,6 +39,15 @@ class Gains:
     torque_kd: float = 150.0
 
 
+def actuation_of(robot: RobotModel, model: mujoco.MjModel | None = None) -> str:
+    """``position`` if every arm actuator is a servo (affine bias), ``torque`` if none is."""
+    model = robot.mj_model if model is None else model
+    servo = model.actuator_biastype[robot.mj_actuator_ids] == mujoco.mjtBias.mjBIAS_AFFINE
+    if servo.any() != servo.all():
+        raise SimError(f"robot '{robot.name}' mixes position servos and motors on its arm joints")
+    return "position" if servo.all() else "torque"
+
+
 class FieldController:
     """Maps a task velocity to actuator commands for ``robot`` placed by ``placement``.
 
@@ -48,14 +57,19 @@ class FieldController:
     """
 
     def __init__(self, robot: RobotModel, placement: Placement, control_dt: float, ik: str = "dls",
-                 actuation: str = "position", rotation_ref: np.ndarray | None = None,
+                 actuation: str | None = None, rotation_ref: np.ndarray | None = None,
                  gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None) -> None:
+        model = robot.mj_model if mj_model is None else mj_model
+        found = actuation_of(robot, model)
+        if actuation is None:
+            actuation = found
         if actuation not in ACTUATIONS:
             raise SimError(f"unknown actuation '{actuation}'; known: {', '.join(ACTUATIONS)}")
+        if actuation != found:
+            raise SimError(f"actuation '{actuation}' needs the robot loaded with actuation='{actuation}'")
         if robot.planar and placement.dim != 2:
             raise SimError(f"robot '{robot.name}' moves in a plane; it cannot follow a {placement.dim}-D field")
-        model = robot.mj_model if mj_model is None else mj_model
         self.robot, self.placement, self.dt = robot, placement, float(control_dt)
         self.actuation, self.gains, self.feedforward = actuation, gains, feedforward
         rows = (0, 1) if robot.planar else None
@@ -69,24 +83,29 @@ class FieldController:
         self._spatial = not robot.planar
         self._kn_n = gains.plane * placement.normal
         self._normal = placement.normal.copy()
+        self._n_o = float(placement.normal @ placement.origin)
+        self._kr = float(gains.rotation)
         self.rotation_ref = None if rotation_ref is None else np.asarray(rotation_ref, dtype=np.float64).copy()
         self._twist = np.zeros(6)
         dofs = robot.mj_dof_adr
         self._damping = model.dof_damping[dofs].copy()
+        acts = robot.mj_actuator_ids
         if actuation == "position":
-            acts = robot.mj_actuator_ids
             kp = model.actuator_gainprm[acts, 0].copy()
             kv = -model.actuator_biasprm[acts, 2].copy()
             if (kp <= 0).any():
                 raise SimError(f"robot '{robot.name}' has no position servos (load it with actuation='position')")
             self._lead = (kv + self._damping) / kp if feedforward else np.full(len(kp), self.dt)
         else:
+            self._pin_model = robot.pin_model
             self._pin_data = robot.pin_model.createData()
+            self._kd, self._inv_dt = float(gains.torque_kd), 1.0 / self.dt
+            self._c_ref = self._inv_dt + self._kd
         self._qdot_prev = np.zeros(robot.n)
 
     def reset(self, q: np.ndarray) -> None:
         """Start a run at rest at q, shape (n,); sets R_ref to the tool orientation there if unset."""
-        self._qdot_prev[:] = 0.0
+        self._qdot_prev = np.zeros(self.robot.n)
         self.kin.update(np.asarray(q, dtype=np.float64))
         if self.rotation_ref is None and self._spatial:
             self.rotation_ref = self.kin.ee_rotation().copy()
@@ -103,23 +122,29 @@ class FieldController:
     def twist(self, v: np.ndarray) -> np.ndarray:
         """The tool twist, shape (6,), for task velocity v, shape (d,), at the last measured pose."""
         tw = self._twist
-        lin = self._sA @ v
         if self._plane:
-            lin -= self._kn_n * (self._normal @ (self.kin.ee_position() - self._origin))
-        tw[:3] = lin
+            tw[:3] = self._sA @ v - self._kn_n * (self._normal @ self.kin.ee_position() - self._n_o)
+        else:
+            tw[:3] = self._sA @ v
         if self._spatial:
-            tw[3:] = self.gains.rotation * pin.log3(self.rotation_ref @ self.kin.ee_rotation().T)
+            tw[3:] = self._kr * pin.log3(self.rotation_ref @ self.kin.ee_rotation().T)
         return tw
+
+    def solve_ik(self, q: np.ndarray, twist: np.ndarray) -> np.ndarray:
+        """qdot_ref, shape (n,), for the twist, shape (6,), at the measured q (FK already done)."""
+        if self._pass_kin:
+            return self.ik.solve(q, twist, self.dt, kin=self.kin)
+        return self.ik.solve(q, twist, self.dt)
+
+    def actuate(self, q: np.ndarray, qdot: np.ndarray, qdot_ref: np.ndarray) -> np.ndarray:
+        """Actuator controls, shape (n,), that make the joints move at qdot_ref (module docstring)."""
+        if self.actuation == "position":
+            return q + self._lead * qdot_ref
+        # qddot_ref + k_d (qdot_ref - qdot) = (1/dt + k_d) qdot_ref - qdot_ref_prev / dt - k_d qdot
+        acc = self._c_ref * qdot_ref - self._inv_dt * self._qdot_prev - self._kd * qdot
+        self._qdot_prev = qdot_ref
+        return pin.rnea(self._pin_model, self._pin_data, q, qdot, acc) + self._damping * qdot
 
     def command(self, q: np.ndarray, qdot: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Actuator controls, shape (n,), for task velocity v, shape (d,), at the measured q, qdot."""
-        tw = self.twist(v)
-        if self._pass_kin:
-            qd_ref = self.ik.solve(q, tw, self.dt, kin=self.kin)
-        else:
-            qd_ref = self.ik.solve(q, tw, self.dt)
-        if self.actuation == "position":
-            return q + self._lead * qd_ref
-        acc = (qd_ref - self._qdot_prev) / self.dt + self.gains.torque_kd * (qd_ref - qdot)
-        self._qdot_prev[:] = qd_ref
-        return pin.rnea(self.robot.pin_model, self._pin_data, q, qdot, acc) + self._damping * qdot
+        return self.actuate(q, qdot, self.solve_ik(q, self.twist(v)))

@@ -17,7 +17,7 @@ import numpy as np
 
 from lfd import DemoSet, VelocityField
 from robots import Kinematics, RobotModel
-from sim.controller import Gains
+from sim.controller import Gains, actuation_of
 from sim.metrics import run_metrics
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
 from sim.placement import Placement, base_position
@@ -60,7 +60,7 @@ class Experiment:
 
     def __init__(self, robot: RobotModel, demos: DemoSet, *, placement: Placement | None = None,
                  plane: str = "auto", size_m: float | None = None, demo_index: int = 0,
-                 control_hz: float = 500.0, ik: str = "dls", actuation: str = "position",
+                 control_hz: float = 500.0, ik: str = "dls", actuation: str | None = None,
                  settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True) -> None:
         self.robot, self.demos = robot, demos
         self.placement = placement or Placement.auto(robot, demos.x, plane=plane, size_m=size_m)
@@ -75,7 +75,7 @@ class Experiment:
         self.demo_world = self.placement.to_world(demos.x[demo_index])
         self.start = demos.x[demo_index, 0].copy()
         self.duration_s = float(self.demo_t[-1]) + settle_s
-        self.options = dict(control_hz=control_hz, ik=ik, actuation=actuation, gains=gains,
+        self.options = dict(control_hz=control_hz, ik=ik, actuation=actuation or actuation_of(robot), gains=gains,
                             feedforward=feedforward)
         self.physics = ArmPhysics.from_robot(robot)
         self.base = base_position(robot)
@@ -117,11 +117,11 @@ class Experiment:
         return RunResult(field.learner, name, ro, ref, metrics)
 
     def render(self, result: RunResult, path: str | os.PathLike, width: int = WIDTH, height: int = HEIGHT,
-               fps: float = FPS) -> int:
+               fps: float = FPS, progress: bool = False) -> int:
         """Write the run's MP4 (see ``sim.render.render_rollout``); returns the frame count."""
         normal = None if self.placement.dim == 3 else self.placement.normal
         return render_rollout(self.physics.model.ptr, result.rollout, self.demo_world, path, self.base,
-                              normal, width, height, fps)
+                              normal, width, height, fps, progress)
 
     def describe(self) -> dict[str, Any]:
         """The experiment's settings, for the metrics JSON."""

@@ -155,7 +155,7 @@ class Placement:
             if not err <= IK_TOLERANCE_M:
                 raise PlacementError(
                     f"placement unreachable on '{robot.name}': {where} {_fmt(p)} m is missed by "
-                    f"{err * 1e3:.1f} mm (use a smaller --scale or another --plane)")
+                    f"{err * 1e3:.1f} mm (try a smaller --size-m or another --plane)")
             bad = np.flatnonzero((qs < qlo) | (qs > qhi))
             if bad.size:
                 j = int(bad[0])

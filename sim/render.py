@@ -17,6 +17,7 @@ from typing import Iterable, Sequence
 
 import mujoco
 import numpy as np
+from tqdm import tqdm
 
 from sim.errors import RenderError
 
@@ -26,11 +27,12 @@ WIDTH, HEIGHT, FPS = 640, 480, 30.0
 # ---------------------------------------------------------------- overlays
 @dataclass(frozen=True)
 class Polyline:
-    """A curve through points, shape (K, 3) (world, m), drawn as capsules of ``radius`` m."""
+    """A curve through points, shape (K, 3) (world, m), drawn as line segments ``width`` pixels wide
+    (lines cost a software renderer far less than capsules)."""
 
     points: np.ndarray
     rgba: tuple[float, float, float, float]
-    radius: float = 0.002
+    width: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -81,8 +83,8 @@ def draw(scene: mujoco.MjvScene, overlay: Overlay) -> None:
             if np.linalg.norm(b - a) < 1e-9:
                 continue
             g = _add_geom(scene)
-            mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), eye, rgba)
-            mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_CAPSULE, overlay.radius, a, b)
+            mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_LINE, np.zeros(3), np.zeros(3), eye, rgba)
+            mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_LINE, overlay.width, a, b)
     elif isinstance(overlay, Arrow):
         start = np.asarray(overlay.start, dtype=np.float64)
         g = _add_geom(scene)
@@ -101,7 +103,8 @@ def framing_camera(points: np.ndarray, base: np.ndarray, normal: np.ndarray | No
     """A free camera framing the workspace: it looks at the centre c of ``points``, shape (K, 3),
     from the side away from the robot ``base``, shape (3,), 35 deg to the side of the line
     base -> c, from above (looking down on a horizontal task plane, i.e. ``normal`` ~ z, at
-    60 deg, else at 25 deg), and far enough to show the path and the forearm of the robot."""
+    60 deg, else at 25 deg), and far enough to show the path and the forearm of the robot:
+    distance = max(1.6 size / tan(fovy / 2), 0.6 |base - c|, 0.3 m)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     lo, hi = pts.min(0), pts.max(0)
     c = (lo + hi) / 2
@@ -116,7 +119,7 @@ def framing_camera(points: np.ndarray, base: np.ndarray, normal: np.ndarray | No
     cam.azimuth = az + 35.0
     cam.elevation = -60.0 if flat else -25.0
     reach = float(np.linalg.norm(base - c))
-    cam.distance = max(2.2 * size / math.tan(math.radians(fovy_deg) / 2), 0.9 * reach, 0.4)
+    cam.distance = max(1.6 * size / math.tan(math.radians(fovy_deg) / 2), 0.6 * reach, 0.3)
     return cam
 
 
@@ -146,7 +149,8 @@ def open_gl_context(width: int, height: int):  # -> mujoco GLContext
 
 
 class SceneRenderer:
-    """Renders MjData states with overlays into RGB images, shape (height, width, 3), uint8.
+    """Renders MjData states with overlays into RGB images, shape (height, width, 3), uint8,
+    without shadows, reflections and skybox.
 
     Use as a context manager (or call ``close``) so the GL context is freed before exit.
     """
@@ -158,6 +162,10 @@ class SceneRenderer:
         self.model, self.width, self.height = model, width, height
         self._ctx = open_gl_context(width, height)
         self.scene = mujoco.MjvScene(model, maxgeom=max_geom)
+        # Shadows, reflections and the skybox cost a software (llvmpipe) renderer ~5x the frame time.
+        for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
+                     mujoco.mjtRndFlag.mjRND_SKYBOX):
+            self.scene.flags[flag] = False
         self.option = mujoco.MjvOption()
         self._mjr = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._mjr)
@@ -233,7 +241,7 @@ ARROW_M_PER_N = 0.004
 
 def render_rollout(model: mujoco.MjModel, rollout, demo_world: np.ndarray, path: str | os.PathLike,
                    base: np.ndarray, normal: np.ndarray | None = None, width: int = WIDTH,
-                   height: int = HEIGHT, fps: float = FPS) -> int:
+                   height: int = HEIGHT, fps: float = FPS, progress: bool = False) -> int:
     """Write the MP4 of a ``sim.rollout.Rollout``: one frame per ``rollout.frame_t`` (a fixed
     rate of simulated time), drawn with the demonstration (blue, demo_world : (T, 3) m), the
     tool trace so far (orange), the goal (green sphere) and, during a push (and 0.1 s after), an
@@ -244,26 +252,29 @@ def render_rollout(model: mujoco.MjModel, rollout, demo_world: np.ndarray, path:
     cam = framing_camera(np.concatenate([demo_world, rollout.ee]), base, normal)
     span = float(np.max(np.ptp(np.concatenate([demo_world, rollout.ee]), axis=0)))
     radius = max(0.0008, 0.008 * span)
-    static: list[Overlay] = [Polyline(decimate(demo_world, 200), DEMO_RGBA, radius * 0.8),
+    px = width / 640.0
+    static: list[Overlay] = [Polyline(decimate(demo_world, 200), DEMO_RGBA, 3.0 * px),
                              Sphere(rollout.goal_world, 2.5 * radius, GOAL_RGBA)]
     window = rollout.push_window_s
     k_push = None if window is None else int(np.searchsorted(rollout.t, window[0]))
     dt = float(rollout.t[1] - rollout.t[0])
 
     def frames() -> Iterable[np.ndarray]:
+        states = tqdm(zip(rollout.frame_t, rollout.frame_qpos), total=len(rollout.frame_t), desc="video",
+                      unit="frame", disable=not progress, leave=False)
         with SceneRenderer(model, width, height) as r:
-            for t, qpos in zip(rollout.frame_t, rollout.frame_qpos):
+            for t, qpos in states:
                 data.qpos[:] = qpos
                 mujoco.mj_forward(model, data)
                 k = min(int(round(t / dt)), len(rollout.ee) - 1)
                 overlays = list(static)
                 if k > 0:
-                    overlays.append(Polyline(decimate(rollout.ee[:k + 1], 300), TRACE_RGBA, radius))
+                    overlays.append(Polyline(decimate(rollout.ee[:k + 1], 300), TRACE_RGBA, 4.0 * px))
                 if window is not None and k >= k_push:
                     overlays.append(Sphere(rollout.ee[k_push], 1.8 * radius, PUSH_RGBA))
                     if window[0] - 1e-9 <= t < window[1] + 0.1:
                         vec = ARROW_M_PER_N * rollout.push_force
-                        overlays.append(Arrow(data.xipos[rollout.push_body] - vec, vec, PUSH_RGBA, 1.5 * radius))
+                        overlays.append(Arrow(data.xipos[rollout.push_body] - vec, vec, PUSH_RGBA, 2.5 * radius))
                 yield r.render(data, cam, overlays)
 
     return write_video(path, frames(), width, height, fps)

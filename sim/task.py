@@ -79,7 +79,7 @@ class FieldTrackingTask(control.Task):
     """
 
     def __init__(self, robot: RobotModel, placement: Placement, start: np.ndarray, goal: np.ndarray,
-                 control_dt: float, duration_s: float, ik: str = "dls", actuation: str = "position",
+                 control_dt: float, duration_s: float, ik: str = "dls", actuation: str | None = None,
                  perturbations: Sequence[Perturbation] = (), rotation_ref: np.ndarray | None = None,
                  gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None) -> None:
@@ -170,10 +170,11 @@ class FieldTrackingTask(control.Task):
 
 def make_environment(robot: RobotModel, placement: Placement, start: np.ndarray, goal: np.ndarray, *,
                      control_hz: float = 500.0, duration_s: float = 6.0, ik: str = "dls",
-                     actuation: str = "position", perturbations: Sequence[Perturbation] = (),
+                     actuation: str | None = None, perturbations: Sequence[Perturbation] = (),
                      rotation_ref: np.ndarray | None = None, gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None) -> control.Environment:
-    """A dm_control Environment of ``robot`` (loaded with ``actuation``) following task velocities.
+    """A dm_control Environment of ``robot`` following task velocities; ``actuation`` (position or
+    torque) must be the one the robot was loaded with (None: whichever that was).
 
     The control step is 1 / control_hz s, an integer number of MuJoCo steps; an episode lasts
     ``duration_s``. The Task sets the actuators itself, so the Environment has

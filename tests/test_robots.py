@@ -303,3 +303,11 @@ def test_unreadable_file_is_a_robot_error(tmp_path: Path) -> None:
     path.write_text("<robot name='x'><link name='a'>")
     with pytest.raises(RobotError, match=r"^cannot parse URDF"):
         load_robot(str(path), ee_frame="a")
+
+
+def test_continuous_joint_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "wheel.urdf"
+    urdf = _URDF.replace('type="revolute"><parent link="base"/>', 'type="continuous"><parent link="base"/>')
+    path.write_text(urdf.replace('<mesh filename="package://tri_description/meshes/base.stl"/>', '<box size="1 1 1"/>'))
+    with pytest.raises(RobotError, match=r"joint 'yaw' of .* is a JointModelRUBZ: arm joints must be 1-DoF"):
+        load_robot(str(path), ee_frame="tool")

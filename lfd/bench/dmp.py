@@ -89,6 +89,8 @@ class DMPModel:
         self.config = {**asdict(config), "fit": "mean demo"}
         self.train_time_s = float(train_time_s)
         self.history: dict[str, Any] = {}
+        self.integrators = {"reproduce": "DMP.step (rk4, compiled), step tau_i / (T - 1)",
+                            "rollouts": "DMP.step (rk4, compiled), the horizon grid's step"}
 
     def _configure(self, x0: np.ndarray, tau: float, dt: float) -> None:
         self.dmp.execution_time_ = tau  # re-times the phase; the weights are kept
@@ -109,9 +111,11 @@ class DMPModel:
         return y, yd
 
     def reproduce(self, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rollout from x[0] with tau = t[-1] - t[0] on T uniform samples: y, yd of shape (T, d)."""
-        tau = float(t[-1] - t[0])
-        return self.run(x[0], tau, tau / (len(t) - 1), len(t))
+        """For each demo x[i], shape (T, d), with times t[i]: the rollout from x[i][0] with
+        tau_i = t[i][-1] - t[i][0] on T uniform samples. Returns y, yd, each (N, T, d)."""
+        out = [self.run(xi[0], float(ti[-1] - ti[0]), float(ti[-1] - ti[0]) / (len(ti) - 1), len(ti))
+               for xi, ti in zip(x, t)]
+        return np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
 
     def rollouts(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
         """From each start x0, shape (B, d), with tau = duration, over the uniform grid t: (B, n, d)."""

@@ -52,7 +52,8 @@ def _stats(values: list[float]) -> dict[str, float]:
 def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str, Any]]:
     """{shape: values} for one learner, averaged over seeds: each metric of ``train`` and of
     ``test`` (None without held-out demos), ``converged`` (all starts), ``converged_perturbed``,
-    ``n_perturbed``, ``train_time_s``, ``step_time_us``."""
+    ``n_perturbed``, ``train_time_s``, ``step_time_us``, ``fallback`` (a rollout needed the
+    fixed-step rk4 fallback of ``lfd.bench.evaluate.FieldModel``)."""
     by: dict[str, list[dict[str, Any]]] = {}
     for r in records:
         if r["learner"] == learner:
@@ -72,6 +73,7 @@ def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str
         row["n_perturbed_ok"] = int(round(float(np.sum(n_ok))))
         row["train_time_s"] = float(np.mean([_num(r["train_time_s"]) for r in rs]))
         row["step_time_us"] = float(np.mean([_num(r["step_time_us"]) for r in rs]))
+        row["fallback"] = any(str(v).startswith("rk4") for r in rs for v in r.get("integrators", {}).values())
         out[shape] = row
     return out
 
@@ -141,33 +143,18 @@ def summary_table(summary: dict[str, Any], split: str) -> str:
 
 def shape_table(rows: dict[str, dict[str, Any]], shapes: list[str], split: str) -> str:
     """One row per shape, then the Mean and Median rows over shapes."""
-    header = ["shape"] + [LABELS[m] for m in ORDER]
-    extra = ["converged", "train (s)", "step (µs)"] if split == "train" else []
-    header += extra
-
-    def cells(get: Callable[[str], float], m: str) -> list[float]:
-        return [get(s) for s in shapes if s in rows]
-
-    body = []
-    for shape in shapes:
-        if shape not in rows:
-            continue
-        r = rows[shape]
-        line = [shape] + [_fmt(r[split][m], FORMATS[m]) for m in ORDER]
-        if extra:
-            line += [f"{100 * r['converged']:.1f}%", _fmt(r["train_time_s"], ".2f"), _fmt(r["step_time_us"], ".1f")]
-        body.append(line)
-    for name, fn in (("**Mean**", np.mean), ("**Median**", np.median)):
-        line = [name]
-        for m in ORDER:
-            with np.errstate(invalid="ignore"):
-                line.append(_fmt(fn(cells(lambda s: rows[s][split][m], m)), FORMATS[m]))
-        if extra:
-            line += [f"{100 * fn(cells(lambda s: rows[s]['converged'], '')):.1f}%",
-                     _fmt(fn(cells(lambda s: rows[s]["train_time_s"], "")), ".2f"),
-                     _fmt(fn(cells(lambda s: rows[s]["step_time_us"], "")), ".1f")]
-        body.append(line)
-    return _table(header, body)
+    shapes = [s for s in shapes if s in rows]
+    cols: list[tuple[str, Callable[[dict[str, Any]], float], Callable[[float], str]]] = [
+        (LABELS[m], (lambda r, m=m: r[split][m]), (lambda v, m=m: _fmt(v, FORMATS[m]))) for m in ORDER]
+    if split == "train":
+        cols += [("converged", lambda r: r["converged"], lambda v: f"{100 * v:.1f}%"),
+                 ("train (s)", lambda r: r["train_time_s"], lambda v: _fmt(v, ".2f")),
+                 ("step (µs)", lambda r: r["step_time_us"], lambda v: _fmt(v, ".1f"))]
+    body = [[shape] + [fmt(get(rows[shape])) for _, get, fmt in cols] for shape in shapes]
+    for name, agg in (("**Mean**", np.mean), ("**Median**", np.median)):
+        with np.errstate(invalid="ignore"):
+            body.append([name] + [fmt(float(agg([get(rows[s]) for s in shapes]))) for _, get, fmt in cols])
+    return _table(["shape"] + [c[0] for c in cols], body)
 
 
 def target_lines(summary: dict[str, Any]) -> list[str]:
@@ -209,6 +196,10 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
                 f"{k} ({100 * rows[k]['converged']:.0f}%)" for k in failing) + ".")
         else:
             text += "Every start converges on every shape."
+        fallback = [k for k in rows if rows[k]["fallback"]]
+        if fallback:
+            text += (" dopri5 gave up (a very stiff field) and the fixed-step rk4 fallback ran on: "
+                     + ", ".join(fallback) + ".")
         if s["test"] is not None:
             te = s["test"]
             text += (f" On held-out demos: DTW {_fmt(te['dtw']['mean'], '.0f')}, RMSE "
@@ -229,8 +220,8 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
 
 def figure_grid(records: list[dict[str, Any]], learner: str, shapes: list[str],
                 arrays: Callable[[dict[str, Any]], dict[str, np.ndarray]], path: str | Path) -> None:
-    """All shapes of one learner (first seed): streamlines (fields only), demos (black),
-    rollouts from the demo starts (red), from ring starts (blue) and box starts (grey)."""
+    """All shapes of one learner (first seed): streamlines (fields only, grey), demos (black),
+    rollouts from the demo starts (red), from ring starts (blue) and from box starts (green)."""
     from matplotlib.figure import Figure
 
     from lfd.demos import lasa
@@ -255,13 +246,13 @@ def figure_grid(records: list[dict[str, Any]], learner: str, shapes: list[str],
         for x in demos.x:
             ax.plot(x[:, 0], x[:, 1], color="k", lw=1.2, alpha=0.8)
         nd, nr = int(a["n_demo"]), int(a["n_ring"])
-        for k, traj in enumerate(a["rollouts"]):
-            color, lw = ("tab:blue", 0.5) if nd <= k < nd + nr else ("0.45", 0.4)
-            if k >= nd:
+        groups = ((slice(nd + nr, None), "tab:green", 0.4), (slice(nd, nd + nr), "tab:blue", 0.5))
+        for sl, color, lw in groups:
+            for traj in a["rollouts"][sl]:
                 ax.plot(traj[:, 0], traj[:, 1], color=color, lw=lw, alpha=0.7)
+            ax.plot(a["starts"][sl, 0], a["starts"][sl, 1], ".", color=color, ms=2)
         for y in a["demo_rollouts"]:
             ax.plot(y[:, 0], y[:, 1], color="tab:red", lw=1.0)
-        ax.plot(a["starts"][nd:, 0], a["starts"][nd:, 1], ".", color="tab:blue", ms=1.5)
         ax.plot(*demos.goal, "*", color="gold", mec="k", ms=8)
         ax.set_xlim(gx[0], gx[-1])
         ax.set_ylim(gy[0], gy[-1])
@@ -271,7 +262,7 @@ def figure_grid(records: list[dict[str, Any]], learner: str, shapes: list[str],
         dtw = recs[shape]["train"]["dtw"]
         ax.set_title(f"{shape}  DTW {_fmt(dtw, '.0f')}", fontsize=8)
     fig.suptitle(f"LASA, {learner}: demos (black), rollouts from demo starts (red), ring starts (blue), "
-                 "box starts (grey)", fontsize=9)
+                 "box starts (green); grey: streamlines", fontsize=9)
     fig.tight_layout()
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=80))
 

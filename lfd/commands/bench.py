@@ -29,8 +29,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     sub.required = True
     q = sub.add_parser("lasa", help="the LASA handwriting benchmark (30 shapes)",
                        description="Train and score learners on the LASA shapes; see docs/benchmark.md.")
-    q.add_argument("--learner", default="all", choices=[*BENCH_LEARNERS, "all"],
-                   help="learner to benchmark (default: all)")
+    q.add_argument("--learner", default="all", metavar="|".join([*BENCH_LEARNERS, "all"]),
+                   help="learner(s) to benchmark, comma-separated (default: all)")
     q.add_argument("--shapes", default="all", metavar="all|NAME,...",
                    help="LASA shapes, comma-separated (default: all 30; with --quick: 3)")
     q.add_argument("--seeds", type=int, default=1, metavar="N", help="train with seeds 0..N-1 (default 1)")
@@ -56,6 +56,18 @@ def _quick_shapes() -> tuple[str, ...]:
     from lfd.bench.protocol import QUICK_SHAPES
 
     return QUICK_SHAPES
+
+
+def resolve_learners(spec: str) -> list[str]:
+    """``all`` or a comma list of BENCH_LEARNERS, in BENCH_LEARNERS order."""
+    from lfd.errors import ConfigError
+
+    names = list(BENCH_LEARNERS) if spec == "all" else [s.strip() for s in spec.split(",") if s.strip()]
+    unknown = [n for n in names if n not in BENCH_LEARNERS]
+    if unknown or not names:
+        raise ConfigError(f"unknown learner(s) {', '.join(unknown) or '(none given)'}; "
+                          f"known: {', '.join(BENCH_LEARNERS)}, all")
+    return [n for n in BENCH_LEARNERS if n in names]
 
 
 def parse_options(items: list[str], learners: list[str]) -> dict[str, dict[str, Any]]:
@@ -86,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seeds < 1 or args.workers < 1:
         raise ConfigError("--seeds and --workers must be >= 1")
-    learners = list(BENCH_LEARNERS) if args.learner == "all" else [args.learner]
+    learners = resolve_learners(args.learner)
     shapes = proto.resolve_shapes(args.shapes, quick=args.quick)
     protocol = proto.Protocol(train_demos=args.train_demos)
     options = parse_options(args.option, learners)

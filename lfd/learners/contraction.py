@@ -10,7 +10,7 @@ This learner never has to check Eq. (C1): it holds for every x by construction. 
 diffeomorphism phi (``lfd.learners.flows``, affine coupling layers) and a latent linear system
 
     Eq. (C2): dy/dt = A (y - y*),  y* = phi(0),  A = -lambda I + S - P,
-              S = W - W' (skew-symmetric), P = L L' (PSD, learned extra damping),
+              S = W - W' (skew-symmetric), P = L L' (L lower-triangular; PSD extra damping),
 
 the field in normalised coordinates (goal at the origin) is
 
@@ -27,7 +27,10 @@ because sym(A) = -lambda I - P <= -lambda I. The trajectory from x0 has the clos
 
 which training uses for trajectory matching. The loss, in normalised units, is
 
-    Eq. (C5): L = mean |f(x_i) - xd_i|^2 / mean |xd|^2 + w mean |x(t_k) - x_demo(t_k)|^2 / mean |x_demo|^2.
+    Eq. (C5): L = mean_i |f(x_i) - xd_i|^2 / mean |xd|^2
+                  + w mean_{n,k} |x_n(t_k) - x_demo,n(t_k)|^2 / mean |x_demo|^2,
+
+with x_n(t) of Eq. (C4) started at demo n's first sample; it is minimised by full-batch L-BFGS.
 
 Units: x_n = (x - goal) / s is an isotropic scaling and time is not rescaled, so lambda is the
 same in user time (1/s), and the metric in user units is M(x) = M_n(x_n) / s^2 (``metric``).
@@ -35,7 +38,6 @@ same in user time (1/s), and the metric in user units is M(x) = M_n(x_n) / s^2 (
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
@@ -50,43 +52,45 @@ from lfd.field import VelocityField
 from lfd.learners.base import Learner
 from lfd.learners.flows import CouplingFlow, coupling_flow_numpy
 
-GRAD_CLIP = 10.0  # max gradient norm per Adam step
-DEFAULT_RATE = 0.5  # 1/s: demos of 4-5 s decay by ~e^-2.5, so 0.5 leaves room to fit them
+DEFAULT_RATE = 0.5  # 1/s. Demos of 3-5 s decay by e^-2..e^-4, so 0.5 leaves room to fit them.
 
 
 @dataclass
 class ContractionConfig:
     """Options of the contraction learner.
 
-    rate : lambda of Eq. (C1)-(C2), 1/s, > 0 (guaranteed contraction rate)
+    rate : lambda of Eqs. (C1)-(C2), 1/s, > 0 (the guaranteed contraction rate)
     layers, features, length_scale, log_scale_bound : the coupling flow phi (``lfd.learners.flows``)
     damping : learn the extra damping P of Eq. (C2) (else P = 0 and sym(A) = -lambda I)
-    iterations, lr, batch : Adam steps, learning rate (cosine-decayed), velocity points per step
-    traj_weight, traj_points : w of Eq. (C5) and the samples per demo it compares (0 disables)
+    iterations : loss evaluations of L-BFGS; batch : velocity points (a fixed seeded subsample)
+    traj_weight, traj_points : w of Eq. (C5) and the samples per demo it compares (w = 0 disables)
     """
 
     rate: float = DEFAULT_RATE
-    layers: int = 8
-    features: int = 64
+    layers: int = 6
+    features: int = 32
     length_scale: float = 0.45
     log_scale_bound: float = 2.0
     damping: bool = True
-    iterations: int = 1000
-    lr: float = 1e-2
-    batch: int = 512
+    iterations: int = 150
+    batch: int = 1000
     traj_weight: float = 1.0
     traj_points: int = 25
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.rate, (int, float)) and math.isfinite(self.rate) and self.rate > 0):
-            raise ValueError(f"rate must be a positive number (1/s), got {self.rate!r}")
+        for name in ("rate", "length_scale", "log_scale_bound", "traj_weight"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or v < 0 or (v == 0 and name != "traj_weight"):
+                raise ValueError(f"{name} must be a {'non-negative' if name == 'traj_weight' else 'positive'} "
+                                 f"number, got {v!r}")
+            setattr(self, name, float(v))
         for name in ("layers", "features", "iterations", "batch", "traj_points"):
             v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < (0 if name == "iterations" else 1):
+            if isinstance(v, bool) or not isinstance(v, int) or v < (0 if name == "iterations" else 1):
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
-        if not (self.log_scale_bound > 0 and self.length_scale > 0 and self.lr > 0 and self.traj_weight >= 0):
-            raise ValueError("log_scale_bound, length_scale and lr must be positive, traj_weight non-negative")
-        self.rate = float(self.rate)
+        if not isinstance(self.damping, bool):
+            raise ValueError(f"damping must be true or false, got {self.damping!r}")
 
 
 class ContractionModule(nn.Module):
@@ -115,35 +119,44 @@ class ContractionModule(nn.Module):
         """Start A of Eq. (C2) at the contracting matrix nearest the least-squares fit v ~ A_ls x.
 
         x, v : tensors, shape (B, d). S = skew(A_ls); P = the PSD part of -(sym(A_ls) + lambda I),
-        eigenvalues clipped below at 1e-3. With phi = identity, f(x) = A x starts as the best
-        linear contracting field (up to that projection).
+        eigenvalues clipped below at 1e-3. With phi = identity, f(x) = A x then starts as the
+        best linear contracting field (up to that projection).
         """
         a_ls = torch.linalg.lstsq(x, v).solution.T
-        self.skew.copy_(0.5 * (a_ls - a_ls.T) / 2)
+        self.skew.copy_((a_ls - a_ls.T) / 4)           # W = skew(A_ls) / 2, so W - W' = skew(A_ls)
         if self.damping is not None:
-            evals, evecs = torch.linalg.eigh(-(0.5 * (a_ls + a_ls.T)) - self.rate * torch.eye(self.dim, dtype=x.dtype))
+            eye = torch.eye(self.dim, dtype=x.dtype)
+            evals, evecs = torch.linalg.eigh(-(a_ls + a_ls.T) / 2 - self.rate * eye)
             p = evecs @ torch.diag(evals.clamp_min(1e-3)) @ evecs.T
             self.damping.copy_(torch.linalg.cholesky(p))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Eq. (C3). x : tensor, shape (B, d); returns f(x), shape (B, d)."""
+        return self.velocity_and_latent(x)[0]
+
+    def velocity_and_latent(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """f(x) of Eq. (C3), shape (B, d), with y = phi(x), shape (B, d), and y* = phi(0), shape (1, d)."""
         y, jac = self.flow.forward_with_jacobian(torch.cat([x, x.new_zeros(1, self.dim)]))
-        v = (y[:-1] - y[-1:]) @ self.latent_matrix().T          # A (phi(x) - y*), y* = phi(0)
-        return torch.linalg.solve(jac[:-1], v.unsqueeze(-1)).squeeze(-1)
+        y, y_star = y[:-1], y[-1:]
+        v = (y - y_star) @ self.latent_matrix().T              # A (phi(x) - y*)
+        return torch.linalg.solve(jac[:-1], v.unsqueeze(-1)).squeeze(-1), y, y_star
 
     def metric(self, x: torch.Tensor) -> torch.Tensor:
         """M_n(x) = J_phi(x)' J_phi(x), shape (B, d, d), for x : tensor, shape (B, d)."""
         _, jac = self.flow.forward_with_jacobian(x)
         return jac.transpose(-1, -2) @ jac
 
-    def trajectory(self, x0: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        """Eq. (C4): exact solutions from x0, shape (N, d), at times t, shape (N, K): (N, K, d)."""
-        y = self.flow(torch.cat([x0, x0.new_zeros(1, self.dim)]))
-        y0, ys = y[:-1], y[-1:]
+    def latent_trajectory(self, y0: torch.Tensor, y_star: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """Eq. (C4) mapped back: x at times t, shape (N, K), from latent starts y0, shape (N, d): (N, K, d)."""
         at = self.latent_matrix() * t.reshape(-1, 1, 1)                             # (N K, d, d)
         e = torch.linalg.matrix_exp(at).reshape(*t.shape, self.dim, self.dim)      # (N, K, d, d)
-        yt = ys + (e @ (y0 - ys)[:, None, :, None]).squeeze(-1)                     # (N, K, d)
+        yt = y_star + (e @ (y0 - y_star)[:, None, :, None]).squeeze(-1)             # (N, K, d)
         return self.flow.inverse(yt.reshape(-1, self.dim)).reshape(yt.shape)
+
+    def trajectory(self, x0: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """Eq. (C4): the exact solutions from x0, shape (N, d), at times t, shape (N, K): (N, K, d)."""
+        y = self.flow(torch.cat([x0, x0.new_zeros(1, self.dim)]))
+        return self.latent_trajectory(y[:-1], y[-1:], t)
 
 
 class ContractionField(VelocityField):
@@ -180,29 +193,46 @@ class ContractionField(VelocityField):
             m = self.module.metric(xn).numpy()
         return m.reshape(*x.shape, self.dim) / self.norm.scale ** 2
 
+    def exact_rollout(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Eq. (C4), no ODE solver: x0 : array, shape (B, d); t : array, shape (T,), t[0] the start.
+
+        Returns shape (B, T, d) in user units.
+        """
+        x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
+        tt = torch.from_numpy(np.broadcast_to(np.asarray(t, dtype=np.float64) - t[0], (len(x0), len(t))).copy())
+        with torch.no_grad():
+            xn = self.module.trajectory(torch.from_numpy(self.norm.to_norm(x0)), tt).numpy()
+        return self.norm.from_norm(xn)
+
     def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
-        """Eq. (C3) for one point in numpy: phi and J_phi by ``coupling_flow_numpy``, then a d x d solve."""
+        """Eq. (C3) for one point: phi and J_phi by ``coupling_flow_numpy``, then a d x d solve
+        (Cramer's rule for d = 2)."""
         params = self.module.flow.numpy_params()
         a = self.latent_matrix
-        y_star, _ = coupling_flow_numpy(params, np.zeros(self.dim))
+        y_star, _ = coupling_flow_numpy(params, [0.0] * self.dim)
         if self.dim == 2:
             a00, a01, a10, a11 = (float(v) for v in a.ravel())
+            s0, s1 = y_star
 
             def f2(xn: np.ndarray) -> np.ndarray:
-                y, j = coupling_flow_numpy(params, xn)
-                e0, e1 = y[0] - y_star[0], y[1] - y_star[1]
+                (y0, y1), ((j00, j01), (j10, j11)) = coupling_flow_numpy(params, xn)
+                e0, e1 = y0 - s0, y1 - s1
                 v0, v1 = a00 * e0 + a01 * e1, a10 * e0 + a11 * e1
-                j00, j01, j10, j11 = j[0, 0], j[0, 1], j[1, 0], j[1, 1]
                 det = j00 * j11 - j01 * j10
                 return np.array([(j11 * v0 - j01 * v1) / det, (j00 * v1 - j10 * v0) / det])
 
             return f2
+        ys = np.asarray(y_star)
 
         def fd(xn: np.ndarray) -> np.ndarray:
             y, j = coupling_flow_numpy(params, xn)
-            return np.linalg.solve(j, a @ (y - y_star))
+            return np.linalg.solve(np.asarray(j), a @ (np.asarray(y) - ys))
 
         return fd
+
+
+class _NonFinite(Exception):
+    """The loss became NaN or inf: stop and keep the best parameters."""
 
 
 class ContractionLearner(Learner):
@@ -214,64 +244,89 @@ class ContractionLearner(Learner):
 
     @classmethod
     def build(cls, dim: int, config: ContractionConfig) -> ContractionModule:
-        return ContractionModule(dim, config)
+        """A fresh float64 module (phi = identity, A = -lambda I - 0.09 I); trains in float64."""
+        return ContractionModule(dim, config).double()
 
     @classmethod
     def fit(cls, module: nn.Module, demos: DemoSet, config: ContractionConfig,
             progress: bool) -> dict[str, Any]:
-        """Minimise Eq. (C5) with Adam on normalised demos; Ctrl-C keeps the best module so far.
+        """Minimise Eq. (C5) by L-BFGS on normalised demos; Ctrl-C keeps the best module so far.
 
-        Returns ``loss`` (per step), ``best_loss``, ``iterations``, ``interrupted`` and
-        ``demo_box_normalized`` (lo, hi of the demos in normalised units, for ``lfd certify``).
+        Runs single-threaded (the tensors are small: one thread is as fast and immune to
+        oversubscription). Returns ``loss`` (per evaluation), ``best_loss``, ``iterations``,
+        ``interrupted``, ``stopped_nonfinite`` and ``demo_box_normalized`` (lo, hi of the demos in
+        normalised units, the default box of ``lfd certify``).
         """
         assert isinstance(module, ContractionModule)
-        module.train()
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return cls._fit(module, demos, config, progress)
+        finally:
+            torch.set_num_threads(threads)
+
+    @classmethod
+    def _fit(cls, module: ContractionModule, demos: DemoSet, config: ContractionConfig,
+             progress: bool) -> dict[str, Any]:
         dtype = next(module.parameters()).dtype
-        x = torch.as_tensor(demos.x.reshape(-1, demos.dim), dtype=dtype)
-        v = torch.as_tensor(demos.xd.reshape(-1, demos.dim), dtype=dtype)
-        v_scale = float((v * v).sum(1).mean())
+        x_all = torch.as_tensor(demos.x.reshape(-1, demos.dim), dtype=dtype)
+        v_all = torch.as_tensor(demos.xd.reshape(-1, demos.dim), dtype=dtype)
+        pick = torch.randperm(x_all.shape[0])[:config.batch] if x_all.shape[0] > config.batch else slice(None)
+        x, v = x_all[pick], v_all[pick]
+        v_scale = float((v_all * v_all).sum(1).mean())
         k_idx = np.unique(np.linspace(0, demos.n_samples - 1, config.traj_points).round().astype(int))
+        n0 = demos.n_demos
         x0 = torch.as_tensor(demos.x[:, 0], dtype=dtype)
         tk = torch.as_tensor(demos.t[:, k_idx] - demos.t[:, :1], dtype=dtype)
         xk = torch.as_tensor(demos.x[:, k_idx], dtype=dtype)
         x_scale = float((xk * xk).sum(-1).mean())
+        x_in = torch.cat([x, x0])
 
-        module.init_latent_from_data(x, v)
-        opt = torch.optim.Adam(module.parameters(), lr=config.lr)
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, max(config.iterations, 1),
-                                                           eta_min=0.05 * config.lr)
+        module.train()
+        module.init_latent_from_data(x_all, v_all)
+        opt = torch.optim.LBFGS(module.parameters(), lr=1.0, max_iter=max(config.iterations, 1),
+                                max_eval=config.iterations, history_size=50, line_search_fn="strong_wolfe",
+                                tolerance_grad=1e-10, tolerance_change=1e-12)
         losses: list[float] = []
-        best_loss, best_state = math.inf, copy.deepcopy(module.state_dict())
-        interrupted = False
-        bar = tqdm(range(config.iterations), desc=f"contraction (rate {config.rate:g}/s)",
+        best: dict[str, Any] = {"loss": math.inf, "state": None}
+        bar = tqdm(total=config.iterations, desc=f"contraction (rate {config.rate:g}/s)",
                    disable=not progress, leave=False)
+
+        def closure() -> torch.Tensor:
+            opt.zero_grad()
+            f, y, y_star = module.velocity_and_latent(x_in)
+            err_v = f[:-n0] - v
+            loss = (err_v * err_v).sum(1).mean() / v_scale
+            if config.traj_weight > 0:
+                err_x = module.latent_trajectory(y[-n0:], y_star, tk) - xk
+                loss = loss + config.traj_weight * (err_x * err_x).sum(-1).mean() / x_scale
+            value = float(loss.detach())
+            if not math.isfinite(value):
+                raise _NonFinite
+            losses.append(value)
+            if value < best["loss"]:
+                best["loss"] = value
+                best["state"] = {k: t.detach().clone() for k, t in module.state_dict().items()}
+            bar.update(1)
+            if len(losses) % 10 == 1:
+                bar.set_postfix(loss=f"{value:.4g}")
+            loss.backward()
+            return loss
+
+        interrupted = nonfinite = False
         try:
-            for it in bar:
-                idx = torch.randint(x.shape[0], (min(config.batch, x.shape[0]),))
-                err_v = module(x[idx]) - v[idx]
-                loss = (err_v * err_v).sum(1).mean() / v_scale
-                if config.traj_weight > 0:
-                    err_x = module.trajectory(x0, tk) - xk
-                    loss = loss + config.traj_weight * (err_x * err_x).sum(-1).mean() / x_scale
-                opt.zero_grad()
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(module.parameters(), GRAD_CLIP)
-                opt.step()
-                sched.step()
-                value = float(loss.detach())
-                losses.append(value)
-                if value < best_loss:
-                    best_loss = value
-                    best_state = {k: t.detach().clone() for k, t in module.state_dict().items()}
-                if it % 25 == 0:
-                    bar.set_postfix(loss=f"{value:.4g}")
+            if config.iterations > 0:
+                opt.step(closure)
         except KeyboardInterrupt:
             interrupted = True
+        except _NonFinite:
+            nonfinite = True
         finally:
             bar.close()
-        if losses:
-            module.load_state_dict(best_state)
+        if best["state"] is not None:
+            module.load_state_dict(best["state"])
         module.eval()
         lo, hi = demos.bounds()
-        return {"loss": losses, "best_loss": best_loss if losses else None, "iterations": len(losses),
-                "interrupted": interrupted, "demo_box_normalized": [lo.tolist(), hi.tolist()]}
+        return {"loss": losses, "best_loss": best["loss"] if losses else None, "iterations": len(losses),
+                "interrupted": interrupted, "stopped_nonfinite": nonfinite,
+                "demo_box_normalized": [lo.tolist(), hi.tolist()]}

@@ -27,6 +27,7 @@ per-step work that does not depend on x is a handful of tensor operations, not K
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -122,36 +123,52 @@ class CouplingFlow(nn.Module):
         return y
 
     def numpy_params(self) -> list[dict[str, Any]]:
-        """Each layer as float64 numpy arrays (u, c, beta, omega, stacked read-out), for
-        ``coupling_flow_numpy``."""
+        """Each layer as plain float64 data for ``coupling_flow_numpy``: u, c (list), beta,
+        ``omega_aug`` (2H, d) with cos(omega_aug [x_c; 1]) = [cos z; sin z] (the last column holds
+        the phases 0 and -pi/2), and the stacked read-out ``w`` (2 + 2(d-1), 2H), ``b`` (list)."""
         with torch.no_grad():
             w, b = self.readout()
+        h = self.features
+        phase = np.concatenate([np.zeros(h), np.full(h, -np.pi / 2)])[:, None]
         layers = []
         for k in range(self.n_layers):
             u, c = self._u_c(k)
-            layers.append({"u": u, "c": np.arange(self.dim)[c], "beta": self.beta,
-                           "omega": self.omega[k].double().numpy().copy(),
-                           "w": w[k].double().numpy().copy(), "b": b[k].double().numpy().copy()})
+            om = self.omega[k].double().numpy()
+            layers.append({"u": u, "c": [int(i) for i in np.arange(self.dim)[c]], "beta": self.beta,
+                           "omega_aug": np.ascontiguousarray(np.hstack([np.vstack([om, om]), phase])),
+                           "w": w[k].double().numpy().copy(), "b": [float(v) for v in b[k]]})
         return layers
 
 
-def coupling_flow_numpy(params: list[dict[str, Any]], x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """phi(x) and J_phi(x) for ONE point in numpy float64: Eqs. (F1)-(F3), (F5), as ``CouplingFlow``.
+def coupling_flow_numpy(params: list[dict[str, Any]], x: np.ndarray | list[float]
+                        ) -> tuple[list[float], list[list[float]]]:
+    """phi(x) and J_phi(x) for ONE point: Eqs. (F1)-(F3), (F5) as ``CouplingFlow``, in float64.
 
-    params : ``CouplingFlow.numpy_params()``; x : array, shape (d,).
-    Returns y, shape (d,), and J, shape (d, d).
+    The control-loop path: per layer three numpy calls (features, cos, read-out), everything of
+    size d in Python floats (numpy calls on d-vectors cost more than their arithmetic).
+    params : ``CouplingFlow.numpy_params()``; x : d floats.
+    Returns y (d floats) and J (d rows of d floats).
     """
-    d = x.shape[0]
+    y = [float(v) for v in x]
+    d = len(y)
     n = d - 1
-    y = np.array(x, dtype=np.float64)
-    jac = np.eye(d)
+    jac = [[1.0 if i == j else 0.0 for j in range(d)] for i in range(d)]
+    arg = np.ones(d)                                   # [x_c; 1]
     for p in params:
-        u, c, beta = p["u"], p["c"], p["beta"]
-        z = p["omega"] @ y[c]
-        out = p["w"] @ np.concatenate((np.cos(z), np.sin(z))) + p["b"]
-        th = np.tanh(out[0] / beta)
-        es = np.exp(beta * th)
-        shear = (y[u] * es * (1.0 - th * th)) * out[2:2 + n] + out[2 + n:]
-        jac[u] = es * jac[u] + shear @ jac[c]
-        y[u] = y[u] * es + out[1]
+        u, c, beta, b = p["u"], p["c"], p["beta"], p["b"]
+        for m, ci in enumerate(c):
+            arg[m] = y[ci]
+        feats = p["omega_aug"] @ arg
+        out = (p["w"] @ np.cos(feats, out=feats)).tolist()
+        th = math.tanh((out[0] + b[0]) / beta)
+        es = math.exp(beta * th)
+        ds = y[u] * es * (1.0 - th * th)
+        row = [es * v for v in jac[u]]
+        for m, ci in enumerate(c):
+            shear = ds * out[2 + m] + out[2 + n + m]
+            jc = jac[ci]
+            for j in range(d):
+                row[j] += shear * jc[j]
+        jac[u] = row
+        y[u] = y[u] * es + out[1] + b[1]
     return y, jac

@@ -147,31 +147,88 @@ class NodeMLP(nn.Module):
         return [m for m in self.net if isinstance(m, nn.Linear)]
 
 
+def _activation_and_slope(name: str, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """z = sigma(a) and sigma'(a), both shape of a, for the activations in ``ACTIVATIONS``."""
+    if name == "tanh":
+        z = torch.tanh(a)
+        return z, 1.0 - z * z
+    if name == "relu":
+        return torch.relu(a), (a > 0).to(a.dtype)
+    if name == "softplus":
+        return nn.functional.softplus(a), torch.where(a > 20.0, 1.0, torch.sigmoid(a))
+    if name == "elu":
+        z = nn.functional.elu(a)
+        return z, torch.where(a > 0, 1.0, z + 1.0)
+    s = torch.sigmoid(a)
+    return a * s, s * (1.0 + a * (1.0 - s))
+
+
+class _ScaledMLP(torch.autograd.Function):
+    """y = (z_L W_L^T + b_L - c) h with z_i = sigma(z_{i-1} W_i^T + b_i), z_0 = x, as one autograd node.
+
+    One node instead of a dozen per evaluation: training is bound by per-op overhead, and the
+    solver calls the field 4 (S - 1) times per segment. Weights come in transposed,
+    wt_i = W_i^T : (in, out); x : (B, d); h : (B, 1); c : (1, d) (the goal offset g(0)).
+    """
+
+    @staticmethod
+    def forward(ctx: Any, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor, activation: str,
+                *params: torch.Tensor) -> torch.Tensor:
+        zs, slopes = [x], []
+        for wt, b in zip(params[0:-2:2], params[1:-2:2]):
+            z, slope = _activation_and_slope(activation, torch.addmm(b, zs[-1], wt))
+            zs.append(z)
+            slopes.append(slope)
+        ctx.save_for_backward(h, *zs, *slopes, *params[0::2])
+        ctx.n_hidden = len(slopes)
+        return (torch.addmm(params[-1], zs[-1], params[-2]) - c) * h
+
+    @staticmethod
+    def backward(ctx: Any, gy: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
+        n = ctx.n_hidden
+        saved = ctx.saved_tensors
+        h, zs, slopes, wts = saved[0], saved[1:n + 2], saved[n + 2:2 * n + 2], saved[2 * n + 2:]
+        g = gy * h
+        grads: list[torch.Tensor] = []
+        for i in range(n, -1, -1):  # layer i maps zs[i] -> pre-activation of layer i + 1
+            grads += [g.sum(0), zs[i].t().mm(g)]
+            g = g.mm(wts[i].t())
+            if i > 0:
+                g = g * slopes[i - 1]
+        grads.reverse()
+        gc = -(gy * h).sum(0, keepdim=True) if ctx.needs_input_grad[2] else None
+        return (g if ctx.needs_input_grad[0] else None, None, gc, None, *grads)
+
+
 class SegmentDynamics(nn.Module):
     """dx/dtau = h f(x) in sample units tau; h : (B, 1), the sample step of each segment's demo.
 
-    With ``cache_offset`` the goal offset g(0) of a NodeMLP is computed once per ``begin``
-    (the parameters are fixed during one integration), not at every evaluation; odeint_adjoint
-    needs the plain f(x) instead, since it differentiates each evaluation on its own.
+    With ``fused`` the field is one ``_ScaledMLP`` node and the goal offset g(0) of a NodeMLP
+    is computed once per ``begin`` (the parameters are fixed during one integration);
+    odeint_adjoint needs the plain f(x) instead, since it differentiates each evaluation alone.
     """
 
-    def __init__(self, field: NodeMLP, cache_offset: bool) -> None:
+    def __init__(self, field: NodeMLP, fused: bool) -> None:
         super().__init__()
         self.field = field
-        self.cache_offset = cache_offset and field.goal_equilibrium
+        self.fused = fused
         self.h = torch.ones(1, 1)
-        self.offset: torch.Tensor | None = None
+        self.offset = torch.zeros(1, 1)
+        self.params: list[torch.Tensor] = []
 
     def begin(self, h: torch.Tensor) -> None:
-        """Set the steps h (B, 1) of the next batch and, if cached, g(0) (1, d)."""
+        """Set the steps h (B, 1) of the next batch, the transposed weights and g(0) (1, d)."""
         self.h = h
-        if self.cache_offset:
-            d = self.field.linears()[0].in_features
-            self.offset = self.field.net(torch.zeros(1, d, dtype=h.dtype))
+        if self.fused:
+            lin = self.field.linears()
+            self.params = [p for m in lin for p in (m.weight.t(), m.bias)]
+            d = lin[0].in_features
+            zero = torch.zeros(1, d, dtype=h.dtype)
+            self.offset = self.field.net(zero) if self.field.goal_equilibrium else zero
 
     def forward(self, t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        if self.cache_offset:
-            return (self.field.net(x) - self.offset) * self.h
+        if self.fused:
+            return _ScaledMLP.apply(x, self.h, self.offset, self.field.activation, *self.params)
         return self.field(x) * self.h
 
 
@@ -217,6 +274,17 @@ def segment_length(config: NodeConfig, k: int) -> int:
     return int(round(config.seg_start + (config.seg - config.seg_start) * frac))
 
 
+def stratified_sample(m: int, batch: int, gen: torch.Generator) -> torch.Tensor:
+    """``batch`` indices in [0, m): one uniform draw from each of ``batch`` equal consecutive strata.
+
+    Segments are ordered by demo, then by start time, so every batch covers every part of every
+    demo (fast starts and slow approaches alike), with far less variance than i.i.d. draws.
+    """
+    edges = torch.div(torch.arange(batch + 1) * m, batch, rounding_mode="floor")
+    lo, size = edges[:-1], edges[1:] - edges[:-1]
+    return lo + (torch.rand(batch, generator=gen, dtype=torch.float64) * size).long()
+
+
 def solver_options(config: NodeConfig) -> dict[str, Any]:
     """Keyword arguments of odeint for the configured solver, in sample units tau."""
     if config.solver in FIXED_SOLVERS:
@@ -238,7 +306,7 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
     dtype = DTYPES[config.dtype]
     module.to(dtype).train()
     x, h = x.to(dtype), h.to(dtype)
-    dynamics = SegmentDynamics(module, cache_offset=not config.adjoint)
+    dynamics = SegmentDynamics(module, fused=not config.adjoint)
     integrate = odeint_adjoint if config.adjoint else odeint
     kwargs = solver_options(config)
     if config.adjoint:
@@ -262,7 +330,7 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
                     tau = torch.arange(seg, dtype=dtype)
                 m = segments.windows.shape[1]
                 if 0 < config.batch < m:
-                    idx = torch.randint(0, m, (config.batch,), generator=gen)
+                    idx = stratified_sample(m, config.batch, gen)
                     w, hb = segments.windows[:, idx], segments.h[idx]
                 else:
                     w, hb = segments.windows, segments.h

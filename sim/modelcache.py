@@ -1,0 +1,57 @@
+"""A cache of trained fields for the scripts: train once per (learner, demos, seed, options).
+
+The file is ``<cache_dir>/<learner>-<key>.pt`` with key the first 16 hex digits of
+sha256(JSON of learner, seed, options and the sha256 of the demos' t and x arrays), so a change
+to any of them trains a new model. Files are written atomically by ``VelocityField.save``; a
+cached file that cannot be read is trained again and replaced.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import lfd
+from lfd import DemoSet, ModelError, VelocityField
+
+DEFAULT_CACHE_DIR = Path(".cache") / "models"
+
+
+def cache_dir() -> Path:
+    """``$LFD_CACHE_DIR`` if set, else ``.cache/models`` under the working directory."""
+    return Path(os.environ.get("LFD_CACHE_DIR") or DEFAULT_CACHE_DIR)
+
+
+def cache_key(learner: str, demos: DemoSet, seed: int, options: dict[str, Any]) -> str:
+    """16 hex digits identifying a training run (see module docstring)."""
+    data = hashlib.sha256()
+    data.update(np.ascontiguousarray(demos.t, dtype=np.float64).tobytes())
+    data.update(np.ascontiguousarray(demos.x, dtype=np.float64).tobytes())
+    spec = {"learner": learner, "seed": int(seed), "options": options, "demos": data.hexdigest()}
+    text = json.dumps(spec, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def cached_field(learner: str, demos: DemoSet, seed: int = 0, options: dict[str, Any] | None = None,
+                 directory: str | os.PathLike | None = None,
+                 progress: bool = True) -> tuple[VelocityField, Path, bool]:
+    """The field of ``lfd.train(learner, demos, seed, **options)``, from the cache when present.
+
+    Returns (field, model file, trained now?).
+    """
+    options = dict(options or {})
+    path = Path(directory or cache_dir()) / f"{learner}-{cache_key(learner, demos, seed, options)}.pt"
+    if path.is_file():
+        try:
+            return lfd.load(str(path)), path, False
+        except ModelError as e:
+            print(f"cache: {e}; training again", file=sys.stderr)
+    field = lfd.train(learner, demos, seed=seed, progress=progress, **options)
+    field.save(path)
+    return field, path, True

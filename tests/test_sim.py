@@ -1,0 +1,199 @@
+"""Mechanics of sim/: placement, perturbations, the dm_control task, divergence, video, the demo CLI.
+
+The fields here are hand-made linear sinks (no training), so these tests are fast and test the
+machinery, not the learners; tests/test_arm_regression.py runs the learned fields.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import sim  # noqa: F401  (sets MUJOCO_GL first)
+import lfd
+from robots import load_robot
+from sim import experiment as sim_experiment
+from sim.perturbations import compile_schedule
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class LinearSink(torch.nn.Module):
+    """f_n(x) = A x with A = [[-a, -w], [w, -a]] (plus -a on z in 3-D): a contracting spiral."""
+
+    def __init__(self, dim: int, a: float = 1.5, w: float = 2.0) -> None:
+        super().__init__()
+        m = -a * np.eye(dim)
+        m[0, 1], m[1, 0] = -w, w
+        self.A = torch.nn.Parameter(torch.tensor(m))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x @ self.A.T
+
+
+def sink_field(demos: lfd.DemoSet) -> lfd.VelocityField:
+    norm = lfd.Normalization.from_points(demos.x, demos.goal)
+    return lfd.VelocityField(LinearSink(demos.dim), norm, "node", {})
+
+
+@pytest.fixture(scope="module")
+def demos() -> lfd.DemoSet:
+    return lfd.spiral(n_demos=2, n_samples=60, duration=1.0)
+
+
+@pytest.fixture(scope="module")
+def planar():
+    return load_robot("planar", actuation="torque")
+
+
+@pytest.fixture(scope="module")
+def panda():
+    return load_robot("panda", actuation="torque")
+
+
+# ---------------------------------------------------------------- placement
+def test_placement_round_trip_and_default_size(panda, demos):
+    pl = sim.Placement.auto(panda, demos.x)
+    x = demos.x[0]
+    np.testing.assert_allclose(pl.to_task(pl.to_world(x)), x, atol=1e-12)
+    np.testing.assert_allclose(pl.velocity_to_world(x) + pl.origin, pl.to_world(x), atol=1e-12)
+    span = np.ptp(pl.to_world(demos.x.reshape(-1, 2)), axis=0).max()
+    assert 0.10 <= span <= 0.15, span          # the default spiral is 10-15 cm across on the Panda
+    assert abs(pl.normal @ np.array([0, 0, 1.0])) == pytest.approx(1.0)   # horizontal plane
+    vert = sim.Placement.auto(panda, demos.x, plane="vertical")
+    assert abs(vert.normal[2]) < 1e-12 and abs(vert.axes[:, 1] @ np.array([0, 0, 1.0])) == pytest.approx(1.0)
+    pl.check_reachable(panda, demos.x)
+
+
+def test_placement_rejects_unreachable(panda, planar, demos):
+    far = sim.Placement.auto(panda, demos.x, size_m=2.5)
+    with pytest.raises(sim.PlacementError, match="unreachable"):
+        far.check_reachable(panda, demos.x)
+    with pytest.raises(sim.PlacementError, match="moves in a plane"):
+        sim.Placement.auto(planar, lfd.spiral3d(n_demos=1, n_samples=20).x)
+    with pytest.raises(sim.PlacementError, match="unreachable"):
+        sim.Experiment(planar, demos, size_m=3.0)
+
+
+# ---------------------------------------------------------------- perturbations
+def test_perturbations_are_deterministic(panda, demos):
+    pl = sim.Placement.auto(panda, demos.x)
+    bodies = {"panda_hand": 10}
+    perts = (sim.StartOffset(seed=3), sim.GoalShift(seed=4), sim.Push(seed=5, start_s=0.1, duration_s=0.2),
+             sim.JointVelocityNoise(std_rad_s=0.01, seed=6))
+    a = compile_schedule(perts, pl, bodies, "panda_hand", 7, 100, 0.002)
+    b = compile_schedule(perts, pl, bodies, "panda_hand", 7, 100, 0.002)
+    for name in ("start_offset_task", "goal_offset_task", "push_force", "qvel_noise"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert a.push_steps == (50, 150) and a.push_body == 10
+    assert np.linalg.norm(a.push_force[:3]) == pytest.approx(20.0)
+    assert abs(a.push_force[:3] @ pl.normal) < 1e-9                      # in the task plane
+    assert np.linalg.norm(pl.to_world(a.start_offset_task) - pl.origin) == pytest.approx(0.02)
+    c = compile_schedule((sim.StartOffset(seed=4), sim.JointVelocityNoise(seed=7)), pl, bodies, "panda_hand",
+                         7, 100, 0.002)
+    assert not np.allclose(a.start_offset_task, c.start_offset_task)
+    assert not np.allclose(a.qvel_noise, c.qvel_noise)
+
+
+def test_perturbed_rollouts_repeat_exactly(planar, demos):
+    exp = sim.Experiment(planar, demos, settle_s=0.0)
+    field = sink_field(demos)
+    perts = (sim.StartOffset(seed=1), sim.Push(start_s=0.2, duration_s=0.1, seed=2), sim.JointVelocityNoise(seed=3))
+    a = exp.rollout(field, perts)
+    b = exp.rollout(field, perts)
+    np.testing.assert_array_equal(a.ee, b.ee)
+    c = exp.rollout(field, ())
+    assert np.abs(a.ee - c.ee).max() > 1e-3
+
+
+# ---------------------------------------------------------------- dm_control environment
+def test_environment_reset_and_step(panda, demos):
+    pl = sim.Placement.auto(panda, demos.x)
+    env = sim.make_environment(panda, pl, demos.x[0, 0], demos.goal, duration_s=0.02)
+    ts = env.reset()
+    assert tuple(ts.observation) == sim.OBSERVATION_KEYS
+    shapes = {k: v.shape for k, v in ts.observation.items()}
+    assert shapes == {"joint_positions": (7,), "joint_velocities": (7,), "ee_position": (3,)}
+    np.testing.assert_allclose(ts.observation["ee_position"], pl.to_world(demos.x[0, 0]), atol=1e-5)
+    spec = env.action_spec()
+    assert spec.shape == (2,) and spec.name == "ee_velocity"
+    assert set(env.observation_spec()) == set(sim.OBSERVATION_KEYS)
+    v = np.array([0.5, 0.0])                      # task units / s along task x
+    steps = 0
+    while not ts.last():
+        ts = env.step(v)
+        steps += 1
+        assert {k: x.shape for k, x in ts.observation.items()} == shapes
+        assert 0.0 <= ts.reward <= 1.0
+    assert steps == 10
+    moved = pl.to_task(ts.observation["ee_position"]) - demos.x[0, 0]
+    assert moved[0] > 0 and abs(moved[1]) < 0.5 * moved[0]
+
+
+# ---------------------------------------------------------------- divergence
+def test_divergence_raises_simulation_error(planar, demos):
+    exp = sim.Experiment(planar, demos, settle_s=0.0)
+    with pytest.raises(sim.SimulationError, match="diverged"):
+        exp.rollout(sink_field(demos), (sim.JointVelocityNoise(std_rad_s=1e12, seed=0),))
+    nan_field = sink_field(demos)
+    with torch.no_grad():
+        nan_field.module.A.fill_(float("nan"))
+    with pytest.raises(sim.SimulationError, match="diverged"):
+        exp.rollout(nan_field)
+
+
+def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypatch):
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import demo_arm
+
+    model = tmp_path / "sink.pt"
+    demos = lfd.spiral(n_demos=2, n_samples=60, duration=1.0)
+    sink_field(demos).save(model)
+    monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
+    diverging = lambda name, seed=0: (sim.JointVelocityNoise(std_rad_s=1e12),)  # noqa: E731
+    monkeypatch.setattr(sim, "scenario", diverging)
+    monkeypatch.setattr(sim_experiment, "scenario", diverging)
+    out = tmp_path / "out"
+    rc = demo_arm.main(["--robot", "planar", "--model", str(model), "--perturb", "none", "--out", str(out), "--quiet"])
+    assert rc == 2
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--robot", "nope"], "unknown robot"),
+    (["--robot", "panda", "--ee-frame", "bogus", "--model", "x.pt"], "frame"),
+    (["--model", "/no/such/model.pt"], "no such model"),
+    (["--demos", "lasa:Nope"], "unknown LASA shape"),
+])
+def test_demo_cli_bad_input_is_one_line_exit_2(argv, message, capsys):
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import demo_arm
+
+    assert demo_arm.main(argv + ["--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
+
+
+# ---------------------------------------------------------------- video
+def test_headless_video_has_expected_frames_and_motion(planar, demos, tmp_path):
+    import imageio_ffmpeg
+
+    exp = sim.Experiment(planar, demos, settle_s=0.0)
+    result = exp.run(sink_field(demos), "push", perturbations=(sim.Push(start_s=0.3, duration_s=0.2),))
+    path = tmp_path / "run.mp4"
+    n = exp.render(result, path, width=160, height=120, fps=30.0)
+    expected = int(np.floor(exp.duration_s * 30.0 + 1e-9)) + 1
+    assert n == expected == len(result.rollout.frame_t)
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    assert tuple(meta["size"]) == (160, 120)
+    frames = np.stack([np.frombuffer(f, np.uint8).reshape(120, 160, 3) for f in reader])
+    assert len(frames) == expected
+    diffs = np.abs(np.diff(frames.astype(np.int16), axis=0)).mean(axis=(1, 2, 3))
+    assert (diffs > 0.05).mean() > 0.8           # the arm moves: most consecutive frames differ
+    assert frames.std() > 10                     # not a blank image

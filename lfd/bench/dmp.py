@@ -47,7 +47,8 @@ class DMPConfig:
     n_weights_per_dim: int = 50
     alpha_y: float = 25.0
     beta_y: float = 6.25
-    regularization: float = 0.0
+    regularization: float = 1e-3
+    allow_final_velocity: bool = False
 
     def __post_init__(self) -> None:
         n = self.n_weights_per_dim
@@ -148,5 +149,6 @@ def fit_dmp(demos: DemoSet, **options: Any) -> DMPModel:
     grid = np.linspace(0.0, duration, demos.n_samples)
     dmp = DMP(n_dims=demos.dim, execution_time=duration, dt=duration / (demos.n_samples - 1),
               n_weights_per_dim=config.n_weights_per_dim, alpha_y=config.alpha_y, beta_y=config.beta_y)
-    dmp.imitate(grid, mean_x, regularization_coefficient=config.regularization)
+    dmp.imitate(grid, mean_x, regularization_coefficient=config.regularization,
+                allow_final_velocity=config.allow_final_velocity)
     return DMPModel(dmp, demos.goal, duration, config, time.perf_counter() - t0)

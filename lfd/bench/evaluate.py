@@ -59,9 +59,8 @@ class FieldModel:
     Rollouts solve dx_n/dt = f_n(x_n) in normalised units with torchdiffeq's adaptive dopri5
     (rtol = atol = ``TOL``), all starts in one batch, with outputs at the requested times (dense
     output, so a demo's 1000 sample times cost no extra steps). If dopri5 fails (step underflow
-    on a blow-up, or more than ``MAX_STEPS`` steps) the batch is redone with fixed-step rk4, the
-    step being the smallest output interval / ``FALLBACK_SUBSTEPS``; ``integrators`` records
-    which solver ran.
+    on a blow-up, or more than ``MAX_STEPS`` steps) the batch is redone with fixed-step rk4 at
+    (about) the demos' sample interval; ``integrators`` records which solver ran.
     """
 
     TOL = 1e-6
@@ -77,7 +76,7 @@ class FieldModel:
         self.train_time_s = float(field.history.get("train_time_s", float("nan")))
         self.integrators: dict[str, str] = {}
 
-    def _solve(self, x0: np.ndarray, t: np.ndarray, what: str) -> np.ndarray:
+    def _solve(self, x0: np.ndarray, t: np.ndarray, what: str, fallback_step: float) -> np.ndarray:
         """x(t) from x0, shape (B, d), at times t, shape (n,) (t[0] = 0): shape (B, n, d)."""
         norm, module = self.field.norm, self.field.module
         xn0 = torch.from_numpy(norm.to_norm(x0))
@@ -92,22 +91,24 @@ class FieldModel:
                             options={"max_num_steps": self.MAX_STEPS})
                 self.integrators[what] = "dopri5"
             except (AssertionError, RuntimeError):
-                step = float(np.min(np.diff(t))) / self.FALLBACK_SUBSTEPS
-                yn = odeint(f, xn0, tt, method="rk4", options={"step_size": step})
-                self.integrators[what] = f"rk4 (step {step:.3g} s, dopri5 failed)"
+                yn = odeint(f, xn0, tt, method="rk4", options={"step_size": fallback_step})
+                self.integrators[what] = f"rk4 (step {fallback_step:.3g} s, dopri5 failed)"
             return norm.from_norm(yn.numpy()).transpose(1, 0, 2)
 
     def reproduce(self, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rel = t - t[:, :1]
         union = np.unique(rel.ravel())
-        y_all = self._solve(x[:, 0], union, "reproduce")              # (N, len(union), d)
+        step = float(np.mean(np.diff(t, axis=1)))
+        y_all = self._solve(x[:, 0], union, "reproduce", step)        # (N, len(union), d)
         idx = np.searchsorted(union, rel)                              # (N, T)
         y = np.stack([y_all[i, idx[i]] for i in range(len(x))])
         with np.errstate(all="ignore"):
             return y, self.field(x)
 
     def rollouts(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
-        return self._solve(x0, t, "rollouts")
+        """The fallback step is t's interval / FALLBACK_SUBSTEPS: the horizon grid is
+        ``Protocol.horizon_stride`` (4) demo sample intervals apart."""
+        return self._solve(x0, t, "rollouts", float(t[1] - t[0]) / self.FALLBACK_SUBSTEPS)
 
     def step_time_us(self, points: np.ndarray, calls: int) -> float:
         f = self.field.point_fn()

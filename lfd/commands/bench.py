@@ -16,8 +16,8 @@ from typing import Any
 BENCH_LEARNERS: tuple[str, ...] = ("node", "contraction", "dmp")
 # --quick: fewer iterations, for the CI smoke test (merged under any --option given)
 QUICK_OPTIONS: dict[str, dict[str, Any]] = {
-    "contraction": {"iterations": 300},
-    "node": {},
+    "contraction": {"iterations": 60},
+    "node": {"iters": 200},
     "dmp": {},
 }
 

@@ -123,7 +123,7 @@ class ContractionModule(nn.Module):
         best linear contracting field (up to that projection).
         """
         a_ls = torch.linalg.lstsq(x, v).solution.T
-        self.skew.copy_((a_ls - a_ls.T) / 4)           # W = skew(A_ls) / 2, so W - W' = skew(A_ls)
+        self.skew.copy_((a_ls - a_ls.T) / 4 * float(__import__("os").environ.get("SKEWX", "1")))
         if self.damping is not None:
             eye = torch.eye(self.dim, dtype=x.dtype)
             evals, evecs = torch.linalg.eigh(-(a_ls + a_ls.T) / 2 - self.rate * eye)

@@ -372,29 +372,47 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
 class NodeField(VelocityField):
     """A NODE velocity field with a pure-numpy single-point path for control loops."""
 
-    def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
-        """x_n (d,) -> f(x_n) (d,): the MLP in numpy float64, g(0) folded into the output bias."""
+    def _numpy_layers(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(W_i, b_i) in float64 with g(0) folded into the output bias: f(x_n) = g'(x_n)."""
         module: NodeMLP = self.module  # type: ignore[assignment]
-        lin = [(m.weight.detach().numpy().copy(), m.bias.detach().numpy().copy()) for m in module.linears()]
-        act = _numpy_activation(module.activation)
-        hidden, (w_out, b_out) = lin[:-1], lin[-1]
-
-        def g(xn: np.ndarray) -> np.ndarray:
-            z = xn
-            for w, b in hidden:
-                z = act(w @ z + b)
-            return w_out @ z + b_out
-
+        layers = [(m.weight.detach().numpy().copy(), m.bias.detach().numpy().copy()) for m in module.linears()]
         if module.goal_equilibrium:
-            b_out = b_out - g(np.zeros(lin[0][0].shape[1]))
+            w_out, b_out = layers[-1]
+            g0 = _numpy_mlp(layers, module.activation)(np.zeros(self.dim))
+            layers[-1] = (w_out, b_out - g0)
+        return layers
 
-        def f(xn: np.ndarray) -> np.ndarray:
-            z = xn
-            for w, b in hidden:
-                z = act(w @ z + b)
-            return w_out @ z + b_out
+    def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
+        """x_n (d,) -> f(x_n) (d,): z_i = sigma(W_i z_{i-1} + b_i), f = W_L z_{L-1} + b_L - g(0)."""
+        return _numpy_mlp(self._numpy_layers(), self.module.activation)
 
-        return f
+    def point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
+        """x (d,) -> dx/dt (d,) in user units, a few us a call: the normalisation
+        x_n = (x - goal) / s, f = s f_n(x_n) is folded into the first and last layers,
+        W_1' = W_1 / s, b_1' = b_1 - W_1 goal / s, W_L' = s W_L, b_L' = s b_L."""
+        layers = self._numpy_layers()
+        goal, s = self.norm.goal, float(self.norm.scale)
+        (w1, b1), (wl, bl) = layers[0], layers[-1]
+        layers[0] = (w1 / s, b1 - w1.dot(goal) / s)
+        layers[-1] = (wl * s, bl * s)
+        return _numpy_mlp(layers, self.module.activation)
+
+
+def _numpy_mlp(layers: list[tuple[np.ndarray, np.ndarray]], activation: str) -> Callable[[np.ndarray], np.ndarray]:
+    """x (d,) -> W_L z_{L-1} + b_L with z_i = sigma(W_i z_{i-1} + b_i), z_0 = x, in numpy.
+
+    ``ndarray.dot`` is about twice as fast as ``@`` on one vector; reentrant (no shared buffers).
+    """
+    act = _numpy_activation(activation)
+    hidden, (w_out, b_out) = tuple(layers[:-1]), layers[-1]
+
+    def f(x: np.ndarray) -> np.ndarray:
+        z = x
+        for w, b in hidden:
+            z = act(w.dot(z) + b)
+        return w_out.dot(z) + b_out
+
+    return f
 
 
 def _numpy_activation(name: str) -> Callable[[np.ndarray], np.ndarray]:

@@ -1,0 +1,244 @@
+"""NODE learner: fit quality, determinism, model files, numpy path, Ctrl-C, config errors, solvers."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+import lfd
+from lfd.demos import DemoSet
+from lfd.learners.node import (ACTIVATIONS, NodeConfig, NodeField, NodeLearner, NodeMLP, SegmentDynamics,
+                               Segments, _ScaledMLP, stratified_sample, uniform_grid)
+from lfd.normalization import Normalization
+
+# A short training: 300 iterations on the default spiral, 100 samples a demo, segments 2 -> 10.
+QUICK = dict(iters=300, samples=100, seg=10, seg_start=2, batch=128, lr=1e-2, lr_final=1e-4)
+# Measured 0.033 (seed 0): rollouts from the demo starts vs the demos, RMSE / scale.
+QUICK_RMSE = 0.06
+# Measured 1.2e-4: the final segment-loss (10 samples), normalised units squared.
+QUICK_LOSS = 3e-4
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread() -> Any:
+    """Small-batch torch on a shared 2-core machine: a second intra-op thread measured 10-80x
+    slower rollouts under load (threads wait on each other), so this module runs on one."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def demos() -> DemoSet:
+    return lfd.spiral()
+
+
+@pytest.fixture(scope="module")
+def field(demos: DemoSet) -> lfd.VelocityField:
+    return lfd.train("node", demos, seed=0, progress=False, **QUICK)
+
+
+def rollout_rmse(field: lfd.VelocityField, demos: DemoSet) -> float:
+    """RMSE of rollouts from the demo starts against the demos, in units of the normalisation scale."""
+    y = field.rollout(demos.x[:, 0], demos.t[0])
+    return float(np.sqrt(np.mean(np.sum((y - demos.x) ** 2, axis=-1))) / field.norm.scale)
+
+
+def test_quick_training_fits_the_spiral(field: lfd.VelocityField, demos: DemoSet) -> None:
+    assert isinstance(field, NodeField)
+    assert rollout_rmse(field, demos) < QUICK_RMSE
+    h = field.history
+    assert len(h["loss"]) == QUICK["iters"] and h["iters_done"] == QUICK["iters"]
+    assert h["interrupted"] is False and h["diverged"] is False
+    assert h["seg"] == QUICK["seg"]
+    assert h["best_loss"] == min(h["loss"][h["best_iter"]:])
+    assert h["best_loss"] < QUICK_LOSS
+    # the goal is an exact equilibrium (goal_equilibrium=True by default)
+    np.testing.assert_array_equal(field(demos.goal), np.zeros(2))
+
+
+def test_same_seed_gives_bit_identical_weights(demos: DemoSet) -> None:
+    opts: dict[str, Any] = dict(QUICK, iters=25)
+    a = lfd.train("node", demos, seed=3, progress=False, **opts)
+    b = lfd.train("node", demos, seed=3, progress=False, **opts)
+    c = lfd.train("node", demos, seed=4, progress=False, **opts)
+    sa, sb, sc = a.module.state_dict(), b.module.state_dict(), c.module.state_dict()
+    assert all(torch.equal(sa[k], sb[k]) for k in sa)
+    assert a.history["loss"] == b.history["loss"]
+    assert not all(torch.equal(sa[k], sc[k]) for k in sa)
+
+
+def test_save_load_round_trip_is_bit_identical(field: lfd.VelocityField, tmp_path: Path) -> None:
+    path = tmp_path / "node.pt"
+    field.save(path)
+    loaded = lfd.load(str(path))
+    assert isinstance(loaded, NodeField)
+    assert loaded.config == field.config and loaded.history == field.history
+    x = np.random.default_rng(0).uniform(-1.5, 1.5, (500, 2))
+    np.testing.assert_array_equal(loaded(x), field(x))
+    f, g = field.point_fn(), loaded.point_fn()
+    for xi in x[:50]:
+        np.testing.assert_array_equal(g(xi), f(xi))
+    t = np.linspace(0, 5, 50)
+    np.testing.assert_array_equal(loaded.rollout(x[:3], t), field.rollout(x[:3], t))
+
+
+def test_config_is_json_and_recorded(field: lfd.VelocityField) -> None:
+    cfg = json.loads(json.dumps(field.config))
+    assert cfg["hidden"] == [64, 64] and cfg["solver"] == "rk4" and cfg["iters"] == QUICK["iters"]
+    assert NodeLearner.make_config(**cfg) == NodeConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
+
+
+@pytest.mark.parametrize("activation", list(ACTIVATIONS))
+def test_numpy_point_path_matches_torch(activation: str) -> None:
+    torch.manual_seed(1)
+    config = NodeLearner.make_config(activation=activation, hidden=(32, 24, 16))
+    module = NodeLearner.build(3, config)
+    with torch.no_grad():
+        for p in module.parameters():
+            p.mul_(4.0)  # push pre-activations well into every branch (softplus threshold 20 too)
+    norm = Normalization(goal=np.array([0.4, -0.3, 1.2]), scale=0.35)
+    f = NodeField(module, norm, "node", dataclasses.asdict(config))
+    x = np.random.default_rng(2).uniform(-1.0, 2.0, (300, 3))
+    ref = f(x)
+    point, point_n = f.point_fn(), f._point_fn_normalized()
+    got = np.stack([point(xi) for xi in x])
+    got_n = np.stack([point_n(xi) for xi in norm.to_norm(x)])
+    assert np.abs(ref).max() > 1.0
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * max(1.0, np.abs(ref).max()))
+    np.testing.assert_allclose(got_n * norm.scale, ref, rtol=0, atol=1e-12 * max(1.0, np.abs(ref).max()))
+    assert isinstance(point(x[0]), np.ndarray) and point(x[0]).shape == (3,)
+
+
+def test_output_layer_is_linear(field: lfd.VelocityField) -> None:
+    module = field.module
+    assert isinstance(module, NodeMLP) and isinstance(module.net[-1], torch.nn.Linear)
+    grid = np.stack(np.meshgrid(np.linspace(-1, 1, 15), np.linspace(-1, 1, 15)), -1).reshape(-1, 2)
+    v = field(field.norm.from_norm(grid))
+    for j in range(2):  # a rotation: each velocity component takes both signs
+        assert (v[:, j] < -0.1).any() and (v[:, j] > 0.1).any()
+
+
+@pytest.mark.parametrize("activation", list(ACTIVATIONS))
+def test_fused_mlp_gradient(activation: str) -> None:
+    torch.manual_seed(0)
+    module = NodeMLP(3, (5, 4), activation, goal_equilibrium=True).double()
+    x = (3 * torch.randn(7, 3, dtype=torch.float64)).requires_grad_()
+    h = torch.rand(7, 1, dtype=torch.float64)
+    c = torch.randn(1, 3, dtype=torch.float64, requires_grad=True)
+    params = [p.detach().clone().requires_grad_() for m in module.linears() for p in (m.weight.t().contiguous(), m.bias)]
+    assert torch.autograd.gradcheck(lambda x, c, *ps: _ScaledMLP.apply(x, h, c, activation, *ps), (x, c, *params))
+    # the fused dynamics equal the plain module path, values and parameter gradients
+    fused, plain = SegmentDynamics(module, fused=True), SegmentDynamics(module, fused=False)
+    fused.begin(h)
+    plain.begin(h)
+    y1, y2 = fused(torch.zeros(()), x), plain(torch.zeros(()), x)
+    torch.testing.assert_close(y1, y2, rtol=1e-12, atol=1e-12)
+    g1 = torch.autograd.grad(y1.square().sum(), list(module.parameters()))
+    g2 = torch.autograd.grad(y2.square().sum(), list(module.parameters()))
+    for a, b in zip(g1, g2):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+
+
+def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.MonkeyPatch) -> None:
+    stop_at = 12
+    seen: list[dict[str, torch.Tensor]] = []
+    real_step = torch.optim.Adam.step
+
+    def step(self: torch.optim.Adam, *args: Any, **kwargs: Any) -> Any:
+        params = [p for g in self.param_groups for p in g["params"]]
+        seen.append({str(i): p.detach().clone() for i, p in enumerate(params)})
+        if len(seen) == stop_at + 1:
+            with torch.no_grad():
+                for p in params:
+                    p.fill_(float("nan"))  # a half-done step: must not survive
+            raise KeyboardInterrupt
+        return real_step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iters=100, seg_start=10, lr=3e-2))
+    h = f.history
+    assert h["interrupted"] is True
+    assert h["iters_done"] == len(h["loss"]) == stop_at + 1
+    assert h["best_loss"] == min(h["loss"]) and h["best_iter"] == int(np.argmin(h["loss"]))
+    kept = [p.detach() for p in f.module.parameters()]
+    best = seen[h["best_iter"]]
+    assert all(torch.equal(p, best[str(i)].double()) for i, p in enumerate(kept))
+    assert np.isfinite(f(demos.x[:, 0])).all()
+
+
+@pytest.mark.parametrize("options, message", [
+    (dict(hidden=(64, 0)), "hidden"),
+    (dict(activation="sigmoid"), "unknown activation 'sigmoid'"),
+    (dict(solver="rk45"), "unknown solver 'rk45'"),
+    (dict(lr=-1.0), "lr must be a positive number"),
+    (dict(lr=1e-3, lr_final=1e-2), "lr_final"),
+    (dict(iters=0), "iters must be an integer >= 1"),
+    (dict(iters=2.5), "iters must be an integer"),
+    (dict(seg=1), "seg must be an integer >= 2"),
+    (dict(seg=10, seg_start=12), "seg_start (12) must not exceed seg (10)"),
+    (dict(batch=-1), "batch"),
+    (dict(samples=5, seg=10), "samples (5) must be at least seg (10)"),
+    (dict(curriculum=1.5), "curriculum"),
+    (dict(dtype="float16"), "dtype"),
+    (dict(adjoint="yes"), "adjoint"),
+    (dict(depth=3), "unknown option(s) depth"),
+])
+def test_bad_config_is_a_config_error(options: dict[str, Any], message: str, demos: DemoSet) -> None:
+    with pytest.raises(lfd.ConfigError, match="^node: ") as err:
+        lfd.train("node", demos, progress=False, **options)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_segments_longer_than_demos_are_a_config_error() -> None:
+    short = lfd.spiral(n_samples=15)
+    with pytest.raises(lfd.ConfigError, match=r"seg \(20\) exceeds the 15 samples"):
+        lfd.train("node", short, progress=False, iters=5)
+
+
+def test_adaptive_solver_and_adjoint_train(demos: DemoSet) -> None:
+    base = dict(QUICK, iters=15, seg=5, seg_start=5)
+    rk4 = lfd.train("node", demos, seed=0, progress=False, **base)
+    dopri = lfd.train("node", demos, seed=0, progress=False, **dict(base, solver="dopri5", rtol=1e-6, atol=1e-8))
+    adj = lfd.train("node", demos, seed=0, progress=False, **dict(base, adjoint=True))
+    for f in (dopri, adj):
+        loss = f.history["loss"]
+        assert len(loss) == 15 and np.isfinite(loss).all()
+        assert loss[-1] < 0.5 * loss[0]
+    # same start, same first batch: the first losses agree up to the solvers' errors
+    assert dopri.history["loss"][0] == pytest.approx(rk4.history["loss"][0], rel=1e-3)
+    assert adj.history["loss"][0] == pytest.approx(rk4.history["loss"][0], rel=1e-5)
+
+
+def test_uniform_grids_and_segments() -> None:
+    t = np.linspace(0.0, 1.0, 30)
+    x = np.stack([np.sin(3 * t), np.cos(3 * t) - np.cos(3.0)], -1)
+    fast = DemoSet(t, x)
+    slow = DemoSet(2 * t ** 1.5, x)  # longer and non-uniform: resampled onto a uniform grid
+    both = DemoSet(np.stack([fast.t[0], slow.t[0]]), np.stack([fast.x[0], slow.x[0]]))
+    xu, h = uniform_grid(both)
+    np.testing.assert_array_equal(xu[0], x)  # already uniform: untouched
+    np.testing.assert_allclose(h, [1 / 29, 2 / 29])
+    tn = np.linspace(0, 2, 30)
+    np.testing.assert_allclose(xu[1, :, 0], np.interp(tn, slow.t[0], x[:, 0]))
+    x10, h10 = uniform_grid(both, samples=10)
+    assert x10.shape == (2, 10, 2)
+    np.testing.assert_allclose(h10, [1 / 9, 2 / 9])
+    seg = Segments.of(torch.from_numpy(xu), torch.from_numpy(h), 4)
+    assert seg.windows.shape == (4, 2 * 27, 2) and seg.h.shape == (54, 1)
+    np.testing.assert_array_equal(seg.windows[:, 28].numpy(), xu[1, 1:5])
+    assert float(seg.h[28]) == h[1]
+
+
+def test_stratified_sample_covers_every_stratum() -> None:
+    gen = torch.Generator().manual_seed(0)
+    idx = stratified_sample(1000, 64, gen)
+    edges = np.arange(65) * 1000 // 64
+    assert ((idx.numpy() >= edges[:-1]) & (idx.numpy() < edges[1:])).all()

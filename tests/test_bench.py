@@ -177,6 +177,19 @@ def test_same_seed_gives_the_same_numbers_in_process(quick: dict[str, Any], tmp_
     assert main(argv) == 0
     again = json.loads((tmp_path / "a.json").read_text())["results"][0]
     first = next(c for c in quick["json"]["results"] if c["learner"] == "contraction" and c["shape"] == "Angle")
-    assert again["hash"] == first["hash"]
-    for key in ("train", "per_demo", "convergence", "config"):
-        assert again[key] == first[key], key
+    assert again["hash"] == first["hash"] and again["config"] == first["config"]
+    # equal to 1e-8: float64 reductions in torch kernels are not bitwise reproducible across runs
+    # (measured: the loss differs in the 11th digit), so the numbers are compared, not the bits
+    for key in ("train", "per_demo", "convergence"):
+        a, b = _numbers(again[key]), _numbers(first[key])
+        assert a.keys() == b.keys()
+        np.testing.assert_allclose([a[k] for k in a], [b[k] for k in a], rtol=1e-8, atol=1e-12, err_msg=key)
+
+
+def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
+    """Flatten the numbers of a nested dict/list into {path: value}."""
+    if isinstance(obj, dict):
+        return {k: v for key, val in obj.items() for k, v in _numbers(val, f"{prefix}/{key}").items()}
+    if isinstance(obj, list):
+        return {k: v for i, val in enumerate(obj) for k, v in _numbers(val, f"{prefix}/{i}").items()}
+    return {prefix: float(obj)} if isinstance(obj, (int, float)) else {}

@@ -175,7 +175,9 @@ def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.Monkey
 
 
 @pytest.mark.parametrize("options, message", [
-    (dict(hidden=(64, 0)), "hidden"),
+    (dict(hidden=(64, 0)), "hidden must list at least one positive integer width"),
+    (dict(hidden="64"), "hidden"),
+    (dict(hidden=(32.5,)), "hidden"),
     (dict(activation="sigmoid"), "unknown activation 'sigmoid'"),
     (dict(solver="rk45"), "unknown solver 'rk45'"),
     (dict(lr=-1.0), "lr must be a positive number"),
@@ -186,7 +188,9 @@ def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.Monkey
     (dict(seg=10, seg_start=12), "seg_start (12) must not exceed seg (10)"),
     (dict(batch=-1), "batch"),
     (dict(samples=5, seg=10), "samples (5) must be at least seg (10)"),
-    (dict(curriculum=1.5), "curriculum"),
+    (dict(curriculum=1.5), "curriculum must be a number in [0, 1]"),
+    (dict(weight_decay="none"), "weight_decay"),
+    (dict(lr=float("nan")), "lr must be a positive number"),
     (dict(dtype="float16"), "dtype"),
     (dict(adjoint="yes"), "adjoint"),
     (dict(depth=3), "unknown option(s) depth"),

@@ -80,6 +80,17 @@ def test_placement_rejects_unreachable(panda, planar, demos):
         sim.Experiment(planar, demos, size_m=3.0)
 
 
+def test_3d_field_on_the_panda_uses_the_full_position(panda):
+    demos3 = lfd.spiral3d(n_demos=2, n_samples=60, duration=1.5)
+    exp = sim.Experiment(panda, demos3, settle_s=0.5)
+    assert exp.placement.dim == 3 and np.allclose(exp.placement.rotation, np.eye(3))
+    r = exp.run(sink_field(demos3), "none")
+    assert np.ptp(r.rollout.ee[:, 2]) > 0.03                # it moves in height too
+    assert r.metrics["tracking_rmse_m"] < 0.003
+    assert np.linalg.norm(r.rollout.ee[-1] - r.reference[-1]) < 0.001    # where the field's flow ends
+    assert r.metrics["joint_limit_violations"] == 0
+
+
 # ---------------------------------------------------------------- perturbations
 def test_perturbations_are_deterministic(panda, demos):
     pl = sim.Placement.auto(panda, demos.x)
@@ -197,3 +208,25 @@ def test_headless_video_has_expected_frames_and_motion(planar, demos, tmp_path):
     diffs = np.abs(np.diff(frames.astype(np.int16), axis=0)).mean(axis=(1, 2, 3))
     assert (diffs > 0.05).mean() > 0.8           # the arm moves: most consecutive frames differ
     assert frames.std() > 10                     # not a blank image
+
+
+# ---------------------------------------------------------------- GL back-end choice
+def test_gl_backend_respects_the_user_and_falls_back_to_osmesa(monkeypatch):
+    from sim import gl
+
+    monkeypatch.setenv("MUJOCO_GL", "osmesa")
+    assert gl.select_backend() == "osmesa" and os.environ["MUJOCO_GL"] == "osmesa"
+    monkeypatch.delenv("MUJOCO_GL")
+    monkeypatch.setattr(gl, "library_found", lambda b: b == "osmesa")
+    assert gl.select_backend() == "osmesa"
+    monkeypatch.delenv("MUJOCO_GL")
+    monkeypatch.setattr(gl, "library_found", lambda b: True)
+    assert gl.select_backend() == "egl"
+
+
+def test_render_error_is_one_clear_line(monkeypatch):
+    from sim.render import open_gl_context
+
+    monkeypatch.setenv("MUJOCO_GL", "wgl")
+    with pytest.raises(sim.RenderError, match="MUJOCO_GL=wgl cannot render offscreen"):
+        open_gl_context(16, 16)

@@ -176,8 +176,10 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
 
 
 def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]]],
-            radius_mm: float, horizon_factor: float) -> str:
+            radius_mm: float, horizon_factor: float, workers: int = 1) -> str:
     """A paragraph per learner generated from the numbers."""
+    from lfd.demos import LASA_SHAPES
+
     parts = []
     for learner, s in summary.items():
         tr = s["train"]
@@ -196,6 +198,11 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
                 f"{k} ({100 * rows[k]['converged']:.0f}%)" for k in failing) + ".")
         else:
             text += "Every start converges on every shape."
+        if s["shapes"] < len(LASA_SHAPES):
+            est = s["train_time_s"]["mean"] * len(LASA_SHAPES) / max(workers, 1)
+            text += (f" It ran on {s['shapes']} of the {len(LASA_SHAPES)} shapes; at its mean training "
+                     f"time of {s['train_time_s']['mean']:.0f} s per shape, all {len(LASA_SHAPES)} would "
+                     f"take about {est / 60:.0f} min of training with {workers} worker(s).")
         fallback = [k for k in rows if rows[k]["fallback"]]
         if fallback:
             text += (" dopri5 gave up (a very stiff field) and the fixed-step rk4 fallback ran on: "
@@ -307,6 +314,11 @@ def write_report(path: str | Path, records: list[dict[str, Any]], learners: list
         summary_table(summary, "train"),
         "",
     ]
+    common = [s for s in shapes if all(s in rows_by[learner] for learner in summary)]
+    if len(summary) > 1 and any(len(rows_by[learner]) != len(common) for learner in summary):
+        sub = summarize([r for r in records if r["shape"] in common], list(summary))
+        md += [f"## Summary on the {len(common)} shapes every learner ran (mean / median)", "",
+               f"Shapes: {', '.join(common)}.", "", summary_table(sub, "train"), ""]
     if any(s["test"] is not None for s in summary.values()):
         md += ["## Held-out demos (mean / median over shapes)", "", summary_table(summary, "test"), ""]
     md += ["## Targets (contraction learner)", ""]
@@ -316,7 +328,8 @@ def write_report(path: str | Path, records: list[dict[str, Any]], learners: list
     md.append(_table(["method", "train (s/shape)", "DTW", "RMSE (mm)", "step (µs)", "converged"],
                      [[name, f"{r['train_time_s']:g}", f"{r['dtw']:g}", f"{r['rmse']:g}",
                        f"{r['step_time_us']:g}", f"{100 * r['converged']:g}%"] for name, r in REFERENCES.items()]))
-    md += ["", "## Reading", "", reading(summary, rows_by, protocol["radius_mm"], protocol["horizon_factor"]), ""]
+    md += ["", "## Reading", "", reading(summary, rows_by, protocol["radius_mm"], protocol["horizon_factor"],
+                                        int(run["workers"])), ""]
     if notes:
         md += [notes.strip(), ""]
     for learner in summary:

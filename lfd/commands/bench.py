@@ -31,8 +31,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                        description="Train and score learners on the LASA shapes; see docs/benchmark.md.")
     q.add_argument("--learner", default="all", metavar="|".join([*BENCH_LEARNERS, "all"]),
                    help="learner(s) to benchmark, comma-separated (default: all)")
-    q.add_argument("--shapes", default="all", metavar="all|NAME,...",
-                   help="LASA shapes, comma-separated (default: all 30; with --quick: 3)")
+    q.add_argument("--shapes", action="append", default=[], metavar="[LEARNER:]all|NAME,...",
+                   help="LASA shapes, comma-separated (default: all 30; with --quick: 3); "
+                        "repeat with a LEARNER: prefix to give one learner fewer, e.g. node:Angle,Sine")
     q.add_argument("--seeds", type=int, default=1, metavar="N", help="train with seeds 0..N-1 (default 1)")
     q.add_argument("--workers", type=int, default=os.cpu_count() or 1, metavar="N",
                    help="worker processes (default: the CPU count; 1 runs in this process)")
@@ -70,6 +71,28 @@ def resolve_learners(spec: str) -> list[str]:
     return [n for n in BENCH_LEARNERS if n in names]
 
 
+def resolve_shape_sets(items: list[str], learners: list[str], quick: bool) -> dict[str, list[str]]:
+    """``--shapes`` values -> {learner: shapes}: an unprefixed value sets every learner's shapes,
+    ``LEARNER:NAMES`` one learner's (default: all, or the quick shapes with --quick)."""
+    from lfd.bench.protocol import resolve_shapes
+    from lfd.errors import ConfigError
+
+    def prefixed(v: str) -> bool:
+        return ":" in v and v.partition(":")[0] in BENCH_LEARNERS
+
+    common = [v for v in items if not prefixed(v)]
+    if len(common) > 1:
+        raise ConfigError(f"--shapes given {len(common)} times without a LEARNER: prefix")
+    default = resolve_shapes(common[0] if common else "all", quick=quick)
+    out = {learner: default for learner in learners}
+    for v in filter(prefixed, items):
+        learner, _, names = v.partition(":")
+        if learner not in learners:
+            raise ConfigError(f"--shapes {v}: learner '{learner}' is not being benchmarked")
+        out[learner] = resolve_shapes(names, quick=quick)
+    return out
+
+
 def parse_options(items: list[str], learners: list[str]) -> dict[str, dict[str, Any]]:
     """``["contraction.rate=1.0", ...]`` -> {"contraction": {"rate": 1.0}}."""
     from lfd.errors import ConfigError
@@ -99,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
     if args.seeds < 1 or args.workers < 1:
         raise ConfigError("--seeds and --workers must be >= 1")
     learners = resolve_learners(args.learner)
-    shapes = proto.resolve_shapes(args.shapes, quick=args.quick)
+    shapes_by = resolve_shape_sets(args.shapes, learners, args.quick)
+    shapes = list(dict.fromkeys(s for learner in learners for s in shapes_by[learner]))
     protocol = proto.Protocol(train_demos=args.train_demos)
     options = parse_options(args.option, learners)
     if args.quick:
@@ -109,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     notes = Path(args.notes).read_text() if args.notes else None
     seeds = list(range(args.seeds))
     cells = [Cell.make(learner, shape, seed, options[learner], protocol)
-             for learner in learners for shape in shapes for seed in seeds]
+             for learner in learners for shape in shapes_by[learner] for seed in seeds]
     json_path = Path(args.json)
     cache = Path(args.cache) if args.cache else json_path.parent / ".cache" / json_path.stem
 
@@ -127,7 +151,8 @@ def run(args: argparse.Namespace) -> int:
                            lambda r: load_arrays(cache, r), notes)
     write_json(json_path, {
         "protocol": protocol.to_dict(), "protocol_hash": proto.stable_hash(protocol.to_dict()),
-        "learners": configs, "shapes": shapes, "seeds": seeds, "quick": bool(args.quick),
+        "learners": configs, "shapes": shapes, "shapes_by_learner": shapes_by, "seeds": seeds,
+        "quick": bool(args.quick),
         "summary": summarize(result.records, learners), "run": run_info, "results": result.records,
     })
     print(f"{len(result.computed)} cell(s) computed, {len(result.cached)} from {cache}, in {wall:.1f} s")
@@ -143,7 +168,7 @@ def _load() -> str:
 
 
 def _command(args: argparse.Namespace) -> str:
-    parts = ["lfd bench lasa", f"--learner {args.learner}", f"--shapes {args.shapes}",
+    parts = ["lfd bench lasa", f"--learner {args.learner}", *(f"--shapes {s}" for s in args.shapes),
              f"--seeds {args.seeds}", f"--workers {args.workers}", f"--train-demos {args.train_demos}"]
     parts += ["--quick"] if args.quick else []
     parts += [f"--option {o}" for o in args.option]

@@ -277,8 +277,15 @@ class ContractionLearner(Learner):
         k_idx = np.unique(np.linspace(0, demos.n_samples - 1, config.traj_points).round().astype(int))
         n0 = demos.n_demos
         x0 = torch.as_tensor(demos.x[:, 0], dtype=dtype)
-        tk = torch.as_tensor(demos.t[:, k_idx] - demos.t[:, :1], dtype=dtype)
-        xk = torch.as_tensor(demos.x[:, k_idx], dtype=dtype)
+        tk = demos.t[:, k_idx] - demos.t[:, :1]
+        xk = demos.x[:, k_idx]
+        import os
+        ext = [float(v) for v in os.environ.get("EXT", "").split(",") if v]
+        if ext:
+            tk = np.concatenate([tk, tk[:, -1:] * (1 + np.asarray(ext))[None]], axis=1)
+            xk = np.concatenate([xk, np.zeros((xk.shape[0], len(ext), xk.shape[2]))], axis=1)
+        tk = torch.as_tensor(tk, dtype=dtype)
+        xk = torch.as_tensor(xk, dtype=dtype)
         x_scale = float((xk * xk).sum(-1).mean())
         x_in = torch.cat([x, x0])
 

@@ -23,7 +23,6 @@ uniform ones.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
@@ -63,7 +62,7 @@ class NodeConfig:
     adjoint : backpropagate with odeint_adjoint (O(1) memory in the segment length, slower)
     seg : samples per shooting segment at the end; ``seg_start`` at the start, growing linearly
           over the first ``curriculum`` fraction of the iterations
-    batch : segments per iteration, drawn at random (0: every segment, full batch)
+    batch : segments per iteration, one drawn from each of ``batch`` equal strata (0: all of them)
     samples : resample each demo to this many samples before training (0: keep them)
     dtype : float32 or float64 for training (the fitted field always evaluates in float64)
     goal_equilibrium : subtract g(0) so that f(0) = 0 exactly: the goal is an equilibrium
@@ -89,9 +88,10 @@ class NodeConfig:
     weight_decay: float = 0.0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.hidden, (list, tuple)) or not self.hidden \
+                or any(not _is_int(w) or w < 1 for w in self.hidden):
+            raise ValueError(f"hidden must list at least one positive integer width, got {self.hidden!r}")
         self.hidden = tuple(int(w) for w in self.hidden)
-        if not self.hidden or any(w < 1 for w in self.hidden):
-            raise ValueError(f"hidden must list at least one positive width, got {list(self.hidden)}")
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"unknown activation '{self.activation}'; known: {', '.join(ACTIVATIONS)}")
         if self.solver not in FIXED_SOLVERS + ADAPTIVE_SOLVERS:
@@ -101,25 +101,33 @@ class NodeConfig:
             raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got '{self.dtype}'")
         for name in ("lr", "lr_final", "rtol", "atol"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if not _is_real(value) or value <= 0:
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
         if self.lr_final > self.lr:
             raise ValueError(f"lr_final ({self.lr_final}) must not exceed lr ({self.lr})")
-        if not (math.isfinite(self.weight_decay) and self.weight_decay >= 0):
-            raise ValueError(f"weight_decay must be >= 0, got {self.weight_decay}")
+        if not _is_real(self.weight_decay) or self.weight_decay < 0:
+            raise ValueError(f"weight_decay must be a number >= 0, got {self.weight_decay!r}")
+        if not _is_real(self.curriculum) or not 0.0 <= self.curriculum <= 1.0:
+            raise ValueError(f"curriculum must be a number in [0, 1], got {self.curriculum!r}")
         for name, low in (("iters", 1), ("substeps", 1), ("seg", 2), ("seg_start", 2), ("batch", 0),
                           ("samples", 0)):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            if not _is_int(value) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
         if self.seg_start > self.seg:
             raise ValueError(f"seg_start ({self.seg_start}) must not exceed seg ({self.seg})")
         if 0 < self.samples < self.seg:
             raise ValueError(f"samples ({self.samples}) must be at least seg ({self.seg})")
-        if not (0.0 <= self.curriculum <= 1.0):
-            raise ValueError(f"curriculum must lie in [0, 1], got {self.curriculum}")
         if not isinstance(self.adjoint, bool) or not isinstance(self.goal_equilibrium, bool):
             raise ValueError("adjoint and goal_equilibrium must be true or false")
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 class NodeMLP(nn.Module):
@@ -343,7 +351,7 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
                     break
                 losses.append(value)
                 if best is None or value < best[0]:
-                    best = (value, k, copy.deepcopy(module.state_dict()))
+                    best = (value, k, {n: p.detach().clone() for n, p in module.state_dict().items()})
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()

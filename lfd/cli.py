@@ -15,7 +15,7 @@ import importlib
 import sys
 from typing import NoReturn, Sequence
 
-COMMANDS: list[str] = ["train", "eval", "plot", "bench"]
+COMMANDS: list[str] = ["train", "eval", "plot", "bench", "certify"]
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130

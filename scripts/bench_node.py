@@ -35,7 +35,8 @@ Y0 = (2.0, 0.0)
 T_END, N_SAMPLES = 25.0, 1000
 # Options of the benchmark run (the learner's defaults are tuned for short robot demos).
 OPTIONS = dict(hidden=(64, 64), activation="tanh", iters=800, lr=2e-2, lr_final=1e-4, seg=10, seg_start=2,
-               curriculum=0.5, batch=256, solver="rk4", dtype="float32", goal_equilibrium=False)
+               curriculum=0.5, batch=256, samples=0, solver="rk4", dtype="float32",
+               goal_equilibrium=False)
 
 
 def spiral_data() -> tuple[np.ndarray, np.ndarray]:

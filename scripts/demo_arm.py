@@ -2,8 +2,10 @@
 """Run learned velocity fields on a simulated arm in closed loop, perturb them, score and film them.
 
 With no flags: trains (or takes from .cache/models) a NODE and a contraction field on the spiral
-demos, runs both on the Panda under every perturbation scenario, and writes one MP4 per run and
-metrics.json into a fresh folder out/demo_arm_YYYYmmdd-HHMMSS/. Errors in the input (unknown
+demos, runs both on the Panda unperturbed, from a start 2 cm off the demo's and with a 20 N push,
+and writes one MP4 per run and metrics.json into a fresh folder out/demo_arm_YYYYmmdd-HHMMSS/.
+Scenarios: none, offset, push, goal (goal moved 2 cm), noise (joint-velocity noise); see
+``sim.experiment.scenario``. Errors in the input (unknown
 robot or frame, missing model, bad demos, unreachable placement) print one line and exit 2; a
 diverging simulation exits 2 before anything is written.
 """
@@ -26,6 +28,7 @@ import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
 
 EXIT_USAGE, EXIT_INTERRUPTED = 2, 130
 LEARNER_CHOICES = ("node", "contraction", "both")
+DEFAULT_SCENARIOS = ("none", "offset", "push")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -44,28 +47,27 @@ def scenarios(text: str) -> tuple[str, ...]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="demo_arm.py", description=__doc__.split("\n\n")[0],
-                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--robot", default="panda", help="planar, panda, or a .urdf/.xml file")
+    p = _Parser(prog="demo_arm.py", description=__doc__.split("\n\n")[0])
+    p.add_argument("--robot", default="panda", help="planar, panda (default), or a .urdf/.xml file")
     p.add_argument("--ee-frame", help="tool frame name (needed for a robot file)")
     p.add_argument("--learner", choices=LEARNER_CHOICES, help="learner(s) to run (default: both, "
                    "or the learner of --model)")
     p.add_argument("--model", help="a trained model file instead of training")
-    p.add_argument("--demos", default="spiral", help="spiral, spiral3d, lasa:NAME or a .csv/.npz file")
-    p.add_argument("--perturb", type=scenarios, default=sim.SCENARIOS, metavar="|".join(sim.SCENARIOS) + "|all",
-                   help="perturbation scenario(s): one name, a comma list, or all")
-    p.add_argument("--seed", type=int, default=0, help="training and perturbation seed")
+    p.add_argument("--demos", default="spiral", help="spiral (default), spiral3d, lasa:NAME or a .csv/.npz file")
+    p.add_argument("--perturb", type=scenarios, default=DEFAULT_SCENARIOS, metavar="|".join(sim.SCENARIOS) + "|all",
+                   help="perturbation scenario(s): one name, a comma list, or all (default: none,offset,push)")
+    p.add_argument("--seed", type=int, default=0, help="training and perturbation seed (default 0)")
     p.add_argument("--out", help="output folder (default: a fresh out/demo_arm_YYYYmmdd-HHMMSS)")
     p.add_argument("--video", help="video path (one run), or a base name: PATH_<learner>_<scenario>.mp4")
     p.add_argument("--no-video", action="store_true", help="skip rendering")
     p.add_argument("--json", help="metrics file (default OUT/metrics.json)")
-    p.add_argument("--ik", choices=("dls", "pink"), default="dls", help="differential IK back-end")
+    p.add_argument("--ik", choices=("dls", "pink"), default="dls", help="differential IK back-end (default dls)")
     p.add_argument("--actuation", choices=sim.ACTUATIONS, default="torque",
-                   help="computed torque, or position servos (see scripts/bench_loop.py)")
+                   help="computed torque (default) or position servos; see scripts/bench_loop.py")
     p.add_argument("--plane", choices=("auto", "horizontal", "vertical"), default="auto",
                    help="task plane of a 2-D field on a spatial arm (auto: horizontal)")
     p.add_argument("--size-m", type=float, help="path size in metres (default 15%% of the reach)")
-    p.add_argument("--control-hz", type=float, default=500.0, help="control rate")
+    p.add_argument("--control-hz", type=float, default=500.0, help="control rate in Hz (default 500)")
     p.add_argument("--iters", type=int, help="training iterations (default: the learner's)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p

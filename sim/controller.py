@@ -13,6 +13,25 @@ qdot = IK(q, twist) (``robots.DifferentialIK``), then the actuator command:
   u = q + qdot_ref dt (``feedforward=False``; it lags and under-speeds, see scripts/bench_loop.py).
 * ``torque`` motors, computed torque with Pinocchio's RNEA:
   tau = RNEA(q, qdot, qddot_ref + k_d (qdot_ref - qdot)) + b qdot, qddot_ref = (qdot_ref - qdot_ref_prev) / dt.
+
+Choice of actuation (measured by scripts/bench_loop.py; Panda, default spiral ~13 cm, horizontal
+plane, dls IK, 500 Hz; 20 N / 0.2 s push on the hand at t = 1 s):
+
+    field        actuation                  tracking RMSE  final goal  push max dev  recovery
+    NODE         servo u = q + qdot dt         79.3 mm      66.9 mm      13.7 mm      never
+    NODE         servo + velocity feed-fwd     10.5 mm       0.23 mm     21.1 mm      4.11 s
+    NODE         computed torque (RNEA)         1.01 mm      0.07 mm      5.8 mm      1.59 s
+    contraction  servo u = q + qdot dt         79.6 mm      68.3 mm      13.8 mm      never
+    contraction  servo + velocity feed-fwd     12.6 mm       1.42 mm     21.5 mm      0.98 s
+    contraction  computed torque (RNEA)         1.16 mm      0.71 mm      8.5 mm      0.92 s
+
+The plain servo command only asks for the distance of one step, so the arm crawls (kp dt / kv
+of the requested speed); the velocity feed-forward fixes the speed but the servo's first-order
+lag (kv / M ~ 1 / (2 w), w = 60 rad/s) still costs ~10 mm. Computed torque cancels the arm's
+dynamics with Pinocchio's RNEA on the same model and adds the acceleration feed-forward, so the
+tool follows the field to ~1 mm, 10x better: it is the default. k_d trades tracking against
+compliance: 40 / 80 / 150 / 300 1/s gave 2.7 / 1.5 / 1.0 / 0.9 mm tracking and 24 / 11 / 5.8 /
+2.9 mm push deviation (NODE); 150 keeps the push visible and the tracking at ~1 mm.
 """
 
 from __future__ import annotations

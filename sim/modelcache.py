@@ -1,13 +1,15 @@
 """A cache of trained fields for the scripts: train once per (learner, demos, seed, options).
 
 The file is ``<cache_dir>/<learner>-<key>.pt`` with key the first 16 hex digits of
-sha256(JSON of learner, seed, options and the sha256 of the demos' t and x arrays), so a change
-to any of them trains a new model. Files are written atomically by ``VelocityField.save``; a
+sha256(JSON of learner, seed, the learner's full config (its defaults filled in) and the sha256
+of the demos' t and x arrays), so a change to any of them, a changed default included, trains a
+new model (a change of a learner's code alone does not: delete the cache then). Files are written atomically by ``VelocityField.save``; a
 cached file that cannot be read is trained again and replaced.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -33,7 +35,8 @@ def cache_key(learner: str, demos: DemoSet, seed: int, options: dict[str, Any]) 
     data = hashlib.sha256()
     data.update(np.ascontiguousarray(demos.t, dtype=np.float64).tobytes())
     data.update(np.ascontiguousarray(demos.x, dtype=np.float64).tobytes())
-    spec = {"learner": learner, "seed": int(seed), "options": options, "demos": data.hexdigest()}
+    config = dataclasses.asdict(lfd.get_learner(learner).make_config(**options))
+    spec = {"learner": learner, "seed": int(seed), "config": config, "demos": data.hexdigest()}
     text = json.dumps(spec, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

@@ -103,8 +103,8 @@ def framing_camera(points: np.ndarray, base: np.ndarray, normal: np.ndarray | No
     """A free camera framing the workspace: it looks at the centre c of ``points``, shape (K, 3),
     from the side away from the robot ``base``, shape (3,), 35 deg to the side of the line
     base -> c, from above (looking down on a horizontal task plane, i.e. ``normal`` ~ z, at
-    60 deg, else at 25 deg), and far enough to show the path and the forearm of the robot:
-    distance = max(1.6 size / tan(fovy / 2), 0.6 |base - c|, 0.3 m)."""
+    45 deg, else at 25 deg), and far enough to show the path and the forearm of the robot:
+    distance = max(2.2 size / tan(fovy / 2), 0.85 |base - c|, 0.3 m)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     lo, hi = pts.min(0), pts.max(0)
     c = (lo + hi) / 2
@@ -117,9 +117,9 @@ def framing_camera(points: np.ndarray, base: np.ndarray, normal: np.ndarray | No
     cam.type = mujoco.mjtCamera.mjCAMERA_FREE
     cam.lookat[:] = c
     cam.azimuth = az + 35.0
-    cam.elevation = -60.0 if flat else -25.0
+    cam.elevation = -45.0 if flat else -25.0
     reach = float(np.linalg.norm(base - c))
-    cam.distance = max(1.6 * size / math.tan(math.radians(fovy_deg) / 2), 0.6 * reach, 0.3)
+    cam.distance = max(2.2 * size / math.tan(math.radians(fovy_deg) / 2), 0.85 * reach, 0.3)
     return cam
 
 
@@ -173,10 +173,17 @@ class SceneRenderer:
         self._pixels = np.empty((height, width, 3), dtype=np.uint8)
 
     def render(self, data: mujoco.MjData, camera: mujoco.MjvCamera,
-               overlays: Sequence[Overlay] = ()) -> np.ndarray:
-        """One image of ``data`` (kinematics already computed) seen by ``camera``."""
+               overlays: Sequence[Overlay] = (), robot_alpha: float = 1.0) -> np.ndarray:
+        """One image of ``data`` (kinematics already computed) seen by ``camera``; the moving
+        bodies are drawn with opacity ``robot_alpha`` (< 1 lets the paths show through the arm)."""
         mujoco.mjv_updateScene(self.model, data, self.option, None, camera,
                                mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+        if robot_alpha < 1.0:
+            dynamic = mujoco.mjtCatBit.mjCAT_DYNAMIC
+            for i in range(self.scene.ngeom):
+                g = self.scene.geoms[i]
+                if g.category & dynamic:
+                    g.rgba[3] *= robot_alpha
         for o in overlays:
             draw(self.scene, o)
         mujoco.mjr_render(self._rect, self.scene, self._mjr)
@@ -222,6 +229,9 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
             for f in frames:
                 w.add_image(f)
                 n += 1
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes the file private; a video is not
         os.replace(tmp, p)
     except (OSError, RuntimeError, ValueError) as e:
         raise RenderError(f"{path}: cannot write the video ({str(e).splitlines()[0]})") from None
@@ -236,14 +246,16 @@ DEMO_RGBA = (0.15, 0.35, 0.95, 0.9)
 TRACE_RGBA = (1.0, 0.55, 0.0, 1.0)
 GOAL_RGBA = (0.1, 0.75, 0.2, 1.0)
 PUSH_RGBA = (0.9, 0.1, 0.1, 1.0)
-ARROW_M_PER_N = 0.004
+ARROW_M_PER_N = 0.005
+ROBOT_ALPHA = 0.5
 
 
 def render_rollout(model: mujoco.MjModel, rollout, demo_world: np.ndarray, path: str | os.PathLike,
                    base: np.ndarray, normal: np.ndarray | None = None, width: int = WIDTH,
                    height: int = HEIGHT, fps: float = FPS, progress: bool = False) -> int:
     """Write the MP4 of a ``sim.rollout.Rollout``: one frame per ``rollout.frame_t`` (a fixed
-    rate of simulated time), drawn with the demonstration (blue, demo_world : (T, 3) m), the
+    rate of simulated time), the arm half transparent (``ROBOT_ALPHA``) so that it does not hide
+    the paths, drawn with the demonstration (blue, demo_world : (T, 3) m), the
     tool trace so far (orange), the goal (green sphere) and, during a push (and 0.1 s after), an
     arrow along the force ending at the pushed body's centre of mass (red, ``ARROW_M_PER_N`` m
     per N), plus a red dot on the trace where the push began.
@@ -253,7 +265,7 @@ def render_rollout(model: mujoco.MjModel, rollout, demo_world: np.ndarray, path:
     span = float(np.max(np.ptp(np.concatenate([demo_world, rollout.ee]), axis=0)))
     radius = max(0.0008, 0.008 * span)
     px = width / 640.0
-    static: list[Overlay] = [Polyline(decimate(demo_world, 200), DEMO_RGBA, 3.0 * px),
+    static: list[Overlay] = [Polyline(decimate(demo_world, 200), DEMO_RGBA, 4.0 * px),
                              Sphere(rollout.goal_world, 2.5 * radius, GOAL_RGBA)]
     window = rollout.push_window_s
     k_push = None if window is None else int(np.searchsorted(rollout.t, window[0]))
@@ -269,12 +281,12 @@ def render_rollout(model: mujoco.MjModel, rollout, demo_world: np.ndarray, path:
                 k = min(int(round(t / dt)), len(rollout.ee) - 1)
                 overlays = list(static)
                 if k > 0:
-                    overlays.append(Polyline(decimate(rollout.ee[:k + 1], 300), TRACE_RGBA, 4.0 * px))
+                    overlays.append(Polyline(decimate(rollout.ee[:k + 1], 300), TRACE_RGBA, 5.0 * px))
                 if window is not None and k >= k_push:
                     overlays.append(Sphere(rollout.ee[k_push], 1.8 * radius, PUSH_RGBA))
                     if window[0] - 1e-9 <= t < window[1] + 0.1:
                         vec = ARROW_M_PER_N * rollout.push_force
-                        overlays.append(Arrow(data.xipos[rollout.push_body] - vec, vec, PUSH_RGBA, 2.5 * radius))
-                yield r.render(data, cam, overlays)
+                        overlays.append(Arrow(data.xipos[rollout.push_body] - vec, vec, PUSH_RGBA, 4.0 * radius))
+                yield r.render(data, cam, overlays, ROBOT_ALPHA)
 
     return write_video(path, frames(), width, height, fps)

@@ -11,8 +11,9 @@
   (``dm_control.utils.rewards.tolerance``).
 
 The fast loop (``sim.rollout``) uses these same Physics and Task objects but calls
-``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly; scripts/bench_loop.py
-measures what ``Environment.step`` costs on top.
+``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly: ``Environment.step``
+(with its observation dicts, reward and wrapped-array access) measured 1.4-1.8x the lean loop's
+cost per control step (scripts/bench_loop.py).
 """
 
 from __future__ import annotations

@@ -230,3 +230,22 @@ def test_render_error_is_one_clear_line(monkeypatch):
     monkeypatch.setenv("MUJOCO_GL", "wgl")
     with pytest.raises(sim.RenderError, match="MUJOCO_GL=wgl cannot render offscreen"):
         open_gl_context(16, 16)
+
+
+# ---------------------------------------------------------------- model cache
+def test_model_cache_trains_once_and_keys_on_seed_and_options(tmp_path, demos):
+    from sim.modelcache import cached_field
+
+    opts = {"layers": 2, "features": 8, "iterations": 5}
+    f1, path, trained = cached_field("contraction", demos, 0, opts, tmp_path, progress=False)
+    assert trained and path.is_file() and path.parent == tmp_path
+    f2, path2, trained2 = cached_field("contraction", demos, 0, opts, tmp_path, progress=False)
+    assert not trained2 and path2 == path
+    x = demos.x[0, :5]
+    np.testing.assert_array_equal(f1(x), f2(x))
+    assert cached_field("contraction", demos, 1, opts, tmp_path, progress=False)[1] != path
+    assert cached_field("contraction", demos, 0, {**opts, "features": 4}, tmp_path, progress=False)[1] != path
+    path.write_bytes(b"not a model")
+    f3, _, trained3 = cached_field("contraction", demos, 0, opts, tmp_path, progress=False)
+    assert trained3
+    np.testing.assert_array_equal(f1(x), f3(x))     # same seed, same model

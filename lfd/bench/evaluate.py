@@ -23,9 +23,9 @@ import torch
 from torchdiffeq import odeint
 
 from lfd import metrics
-from lfd.demos import DemoSet
-from lfd.field import VelocityField
 from lfd.bench import protocol as proto
+from lfd.demos import DemoSet, lasa
+from lfd.field import VelocityField
 
 METRICS: tuple[str, ...] = ("rmse", "dtw", "chamfer_dtwd", "frechet", "swept_area", "velocity_rmse",
                             "cosine_error")
@@ -39,6 +39,7 @@ class Model(TypingProtocol):
     config: dict[str, Any]
     train_time_s: float
     history: dict[str, Any]
+    integrators: dict[str, str]
 
     def reproduce(self, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """x : array, shape (N, T, d) (demos); t : array, shape (N, T). Returns y, v, each (N, T, d)."""
@@ -167,37 +168,43 @@ def _mean(per: dict[str, list[float]], idx: list[int]) -> dict[str, float] | Non
     return {m: float(np.mean([v[i] for i in idx])) for m, v in per.items()}
 
 
+def convergence(final: np.ndarray, goal: np.ndarray, st: proto.Starts, radius: float) -> dict[str, Any]:
+    """Fractions of rollouts ending within ``radius`` of ``goal``: of all starts (``rate``) and
+    of each group (``demo``, ``ring``, ``box``; None for an empty group), with the group sizes
+    and the median and largest final distance (inf for a diverged rollout).
+    final : array, shape (B, d), the rollouts' end points in the order of ``st.all``."""
+    dist = np.linalg.norm(final - goal, axis=1)
+    dist = np.where(np.isfinite(dist), dist, np.inf)
+    out: dict[str, Any] = {"rate": metrics.convergence_rate(final, goal, radius)}
+    for name, sl in st.groups().items():
+        out[name] = metrics.convergence_rate(final[sl], goal, radius) if len(dist[sl]) else None
+    out.update(n_starts=len(dist), n_demo=len(st.demo), n_ring=len(st.ring), n_box=len(st.box),
+               radius_mm=radius, median_final_mm=float(np.median(dist)), max_final_mm=float(np.max(dist)))
+    return out
+
+
 def evaluate_cell(learner: str, shape: str, seed: int, options: dict[str, Any],
                   protocol: proto.Protocol) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Train and score one (learner, shape, seed). Returns the JSON record and the arrays for
     the figures: ``demo_rollouts`` (N, T, 2), ``starts`` (B, 2), ``rollouts`` (B, keep, 2),
     ``final`` (B, 2), ``grid_x`` (G,), ``grid_y`` (G,), ``grid_v`` (G, G, 2) or (0,)."""
-    demos = proto.lasa(shape)
+    demos = lasa(shape)
     train, _ = proto.split(demos, protocol.train_demos)
-    torch.manual_seed(seed)
     model = fit(learner, train, seed, options)
     if model.history.get("interrupted"):  # the learner swallowed Ctrl-C: never score or cache it
         raise KeyboardInterrupt
-
     per, demo_rollouts = score(model, demos, protocol.dtw_step)
     train_idx = list(range(protocol.train_demos))
     test_idx = list(range(protocol.train_demos, demos.n_demos))
 
     st = proto.starts(demos, shape, protocol)
     h, n = proto.horizon(demos, protocol)
-    tgrid = np.linspace(0.0, h, n)
-    traj = model.rollouts(st.all, tgrid)
-    final = traj[:, -1]
-    dist = np.linalg.norm(final - demos.goal, axis=1)
-    dist = np.where(np.isfinite(dist), dist, np.inf)
-    conv = {"rate": metrics.convergence_rate(final, demos.goal, protocol.radius_mm)}
-    for name, sl in st.groups().items():
-        conv[name] = metrics.convergence_rate(final[sl], demos.goal, protocol.radius_mm) if len(dist[sl]) else None
-    conv.update(n_starts=int(len(dist)), n_demo=len(st.demo), n_ring=len(st.ring), n_box=len(st.box), radius_mm=protocol.radius_mm, horizon_s=h, n_steps=n,
-                median_final_mm=float(np.median(dist)), max_final_mm=float(np.max(dist)))
+    traj = model.rollouts(st.all, np.linspace(0.0, h, n))
+    conv = {**convergence(traj[:, -1], demos.goal, st, protocol.radius_mm), "horizon_s": h, "n_steps": n}
 
-    timing_points = train.x.reshape(-1, 2)[:: max(1, train.x.shape[0] * train.x.shape[1] // protocol.timing_calls)]
-    step_us = model.step_time_us(timing_points, protocol.timing_calls)
+    points = train.x.reshape(-1, train.dim)
+    stride = max(1, len(points) // protocol.timing_calls)
+    step_us = model.step_time_us(points[::stride], protocol.timing_calls)
 
     lo, hi = demos.bounds(protocol.box_grow)
     gx, gy = np.linspace(lo[0], hi[0], protocol.grid), np.linspace(lo[1], hi[1], protocol.grid)
@@ -210,10 +217,10 @@ def evaluate_cell(learner: str, shape: str, seed: int, options: dict[str, Any],
         "train_time_s": model.train_time_s, "step_time_us": step_us,
         "train": _mean(per, train_idx), "test": _mean(per, test_idx),
         "per_demo": per, "convergence": conv, "history": model.history,
-        "integrators": dict(getattr(model, "integrators", {})),
+        "integrators": dict(model.integrators),
     }
     arrays = {
-        "demo_rollouts": demo_rollouts, "starts": st.all, "rollouts": traj[:, keep], "final": final,
+        "demo_rollouts": demo_rollouts, "starts": st.all, "rollouts": traj[:, keep], "final": traj[:, -1],
         "grid_x": gx, "grid_y": gy, "grid_v": gv if gv is not None else np.zeros(0),
         "n_demo": np.array(len(st.demo)), "n_ring": np.array(len(st.ring)),
     }

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from lfd.demos import LASA_SHAPES, DemoSet, lasa
+from lfd.demos import LASA_SHAPES, DemoSet
 from lfd.errors import ConfigError
 
 PROTOCOL_VERSION = 1

@@ -133,7 +133,8 @@ def summary_table(summary: dict[str, Any], split: str) -> str:
         row += [f"{_fmt(s[split][m]['mean'], FORMATS[m])} / {_fmt(s[split][m]['median'], FORMATS[m])}"
                 for m in ORDER]
         if split == "train":
-            row += [f"{100 * s['converged']['mean']:.1f}% ({s['shapes_all_converged']}/{s['shapes']} shapes all)",
+            all_ok = f"{s['shapes_all_converged']}/{s['shapes']} shapes all"
+            row += [f"{100 * s['converged']['mean']:.1f}% ({all_ok})",
                     f"{100 * s['converged_perturbed']:.1f}%",
                     f"{_fmt(s['train_time_s']['mean'], '.2f')} / {_fmt(s['train_time_s']['median'], '.2f')}",
                     f"{_fmt(s['step_time_us']['mean'], '.1f')} / {_fmt(s['step_time_us']['median'], '.1f')}"]
@@ -165,13 +166,16 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
     measured = {"dtw": s["train"]["dtw"]["mean"], "rmse": s["train"]["rmse"]["mean"],
                 "train_time_s": s["train_time_s"]["mean"], "step_time_us": s["step_time_us"]["mean"],
                 "converged": s["converged"]["mean"]}
-    names = {"dtw": "mean DTW", "rmse": "mean RMSE (mm)", "train_time_s": "mean training time per shape (s)",
-             "step_time_us": "mean single-point evaluation (µs)", "converged": "fraction of starts converged"}
+    names = {"dtw": "mean DTW", "rmse": "mean RMSE (mm)",
+             "train_time_s": "mean training time per shape (s)",
+             "step_time_us": "mean single-point evaluation (µs)",
+             "converged": "fraction of starts converged"}
     out = []
     for key, (op, bound) in TARGETS.items():
         v = measured[key]
         ok = v <= bound if op == "<=" else v >= bound
-        out.append(f"- {names[key]}: {_fmt(v, '.4g')} (target {op} {bound:g}): {'met' if ok else '**NOT met**'}")
+        verdict = "met" if ok else "**NOT met**"
+        out.append(f"- {names[key]}: {_fmt(v, '.4g')} (target {op} {bound:g}): {verdict}")
     return out
 
 
@@ -189,7 +193,8 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
         text = (f"**{learner}** reproduces the demos of {s['shapes']} shapes with DTW "
                 f"{_fmt(tr['dtw']['mean'], '.0f')} (median {_fmt(tr['dtw']['median'], '.0f')}) and RMSE "
                 f"{_fmt(tr['rmse']['mean'], '.2f')} mm (median {_fmt(tr['rmse']['median'], '.2f')} mm); "
-                f"{100 * s['converged']['mean']:.1f}% of all starts and {100 * s['converged_perturbed']:.1f}% of "
+                f"{100 * s['converged']['mean']:.1f}% of all starts and "
+                f"{100 * s['converged_perturbed']:.1f}% of "
                 f"the perturbed starts end within {radius_mm:g} mm of the goal after {horizon_factor:g}x the "
                 f"longest demo's duration. Hardest shapes by DTW: "
                 + ", ".join(f"{k} ({rows[k]['train']['dtw']:.0f})" for k in worst) + ". ")
@@ -300,13 +305,15 @@ def write_report(path: str | Path, records: list[dict[str, Any]], learners: list
         + (f", demos {k}..6 held out" if k < 7 else " (all 7)") + "; metrics in mm, DTW = sum of "
         f"distances along the optimal warping path over every {protocol['dtw_step']}th sample; "
         "DTWD* = closest-point (Chamfer) distance, not DTW.",
-        f"- Convergence: within {protocol['radius_mm']:g} mm of the goal after {protocol['horizon_factor']:g}x "
+        f"- Convergence: within {protocol['radius_mm']:g} mm of the goal after "
+        f"{protocol['horizon_factor']:g}x "
         f"the longest demo's duration, from {7} demo starts, {7 * protocol['ring_points']} ring starts "
         f"({protocol['ring_radius']:g} x extent around each demo start) and {protocol['box_points']} box "
         f"starts (bounding box grown by {100 * protocol['box_grow']:g}%) per shape.",
         f"- Run: {run['workers']} worker process(es), one torch thread each, on {run['cpus']} CPU cores; "
         f"wall time {run['wall_s']:.0f} s for the cells computed in this run ({run['computed']} computed, "
-        f"{run['cached']} from the cache); load average {run['load_start']} at start, {run['load_end']} at end. "
+        f"{run['cached']} from the cache); load average {run['load_start']} at start, "
+        f"{run['load_end']} at end. "
         "Timings are inflated by whatever else ran on the machine.",
         "",
         "## Summary (mean / median over shapes)",
@@ -324,10 +331,12 @@ def write_report(path: str | Path, records: list[dict[str, Any]], learners: list
     md += ["## Targets (contraction learner)", ""]
     tl = target_lines(summary)
     md += tl if tl else ["The contraction learner was not part of this run."]
-    md += ["", "Reference points measured by peers on six shapes (true DTW, every 4th sample, one torch thread):", ""]
+    md += ["", "Reference points measured by peers on six shapes (true DTW, every 4th sample, "
+           "one torch thread):", ""]
     md.append(_table(["method", "train (s/shape)", "DTW", "RMSE (mm)", "step (µs)", "converged"],
                      [[name, f"{r['train_time_s']:g}", f"{r['dtw']:g}", f"{r['rmse']:g}",
-                       f"{r['step_time_us']:g}", f"{100 * r['converged']:g}%"] for name, r in REFERENCES.items()]))
+                       f"{r['step_time_us']:g}", f"{100 * r['converged']:g}%"]
+                      for name, r in REFERENCES.items()]))
     md += ["", "## Reading", "", reading(summary, rows_by, protocol["radius_mm"], protocol["horizon_factor"],
                                         int(run["workers"])), ""]
     if notes:

@@ -30,7 +30,10 @@ which training uses for trajectory matching. The loss, in normalised units, is
     Eq. (C5): L = mean_i |f(x_i) - xd_i|^2 / mean |xd|^2
                   + w mean_{n,k} |x_n(t_k) - x_demo,n(t_k)|^2 / mean |x_demo|^2,
 
-with x_n(t) of Eq. (C4) started at demo n's first sample; it is minimised by full-batch L-BFGS.
+with x_n(t) of Eq. (C4) started at demo n's first sample, t_k at ``traj_points`` samples of the
+demo and at T_n (1 + r), r in ``REST_TIMES``, where the target is the goal (a demo rests there
+after its last sample; this stops fits that sweep past the goal and loop back). The loss is
+minimised by full-batch L-BFGS.
 
 Units: x_n = (x - goal) / s is an isotropic scaling and time is not rescaled, so lambda is the
 same in user time (1/s), and the metric in user units is M(x) = M_n(x_n) / s^2 (``metric``).
@@ -52,6 +55,7 @@ from lfd.field import VelocityField
 from lfd.learners.base import Learner
 from lfd.learners.flows import CouplingFlow, coupling_flow_numpy
 
+REST_TIMES = (0.1, 0.25, 0.5, 1.0)  # Eq. (C5): after T (1 + r) a demo rests at its goal (the origin)
 DEFAULT_RATE = 0.5  # 1/s. Demos of 3-5 s decay by e^-2..e^-4, so 0.5 leaves room to fit them.
 
 
@@ -123,7 +127,7 @@ class ContractionModule(nn.Module):
         best linear contracting field (up to that projection).
         """
         a_ls = torch.linalg.lstsq(x, v).solution.T
-        self.skew.copy_((a_ls - a_ls.T) / 4 * float(__import__("os").environ.get("SKEWX", "1")))
+        self.skew.copy_((a_ls - a_ls.T) / 4)           # W = skew(A_ls) / 2, so W - W' = skew(A_ls)
         if self.damping is not None:
             eye = torch.eye(self.dim, dtype=x.dtype)
             evals, evecs = torch.linalg.eigh(-(a_ls + a_ls.T) / 2 - self.rate * eye)
@@ -279,11 +283,8 @@ class ContractionLearner(Learner):
         x0 = torch.as_tensor(demos.x[:, 0], dtype=dtype)
         tk = demos.t[:, k_idx] - demos.t[:, :1]
         xk = demos.x[:, k_idx]
-        import os
-        ext = [float(v) for v in os.environ.get("EXT", "").split(",") if v]
-        if ext:
-            tk = np.concatenate([tk, tk[:, -1:] * (1 + np.asarray(ext))[None]], axis=1)
-            xk = np.concatenate([xk, np.zeros((xk.shape[0], len(ext), xk.shape[2]))], axis=1)
+        tk = np.concatenate([tk, tk[:, -1:] * (1.0 + np.asarray(REST_TIMES))[None]], axis=1)
+        xk = np.concatenate([xk, np.zeros((xk.shape[0], len(REST_TIMES), xk.shape[2]))], axis=1)
         tk = torch.as_tensor(tk, dtype=dtype)
         xk = torch.as_tensor(xk, dtype=dtype)
         x_scale = float((xk * xk).sum(-1).mean())

@@ -12,7 +12,8 @@ turns at t = 25), so ``goal_equilibrium=False``.
 
 MAE = mean |y_hat(t_k) - y(t_k)| over the 1000 samples and both coordinates, in the original
 units, with y_hat integrated from y0 over the whole span by dopri5 (rtol 1e-7) in float64: the
-learned field's own flow, not the training solver. Prints times and MAE; never asserts a time.
+learned field's own flow, not the training solver. Also times ``field.point_fn()``, the numpy
+single-point path of the control loop (median and p95). Prints numbers; never asserts a time.
 
     python scripts/bench_node.py [--seeds 0 1 2] [--iters 800] [--progress]
 """
@@ -49,15 +50,31 @@ def spiral_data() -> tuple[np.ndarray, np.ndarray]:
     return t.numpy(), y[:, 0].numpy()
 
 
+def point_fn_us(field: lfd.VelocityField, x: np.ndarray, blocks: int = 200,
+                calls: int = 100) -> tuple[float, float]:
+    """Median and p95 time of one ``field.point_fn()`` call, in us, over blocks of ``calls`` calls."""
+    f = field.point_fn()
+    times = []
+    for b in range(blocks):
+        xb = x[(b * calls) % len(x):][:calls]
+        t0 = time.perf_counter()
+        for xi in xb:
+            f(xi)
+        times.append((time.perf_counter() - t0) / len(xb) * 1e6)
+    return float(np.median(times)), float(np.percentile(times, 95))
+
+
 def run(seed: int, t: np.ndarray, y: np.ndarray, progress: bool, **options: object) -> dict[str, float]:
-    """Train on (t, y) with ``seed``; return train wall/CPU seconds and the full-trajectory MAE."""
+    """Train on (t, y) with ``seed``; return train wall/CPU seconds, the full-trajectory MAE and
+    the single-point evaluation time of the numpy path."""
     demos = lfd.DemoSet(t, y[None], name="torchdiffeq-spiral")
     w0, c0 = time.perf_counter(), time.process_time()
     field = lfd.train("node", demos, seed=seed, progress=progress, **{**OPTIONS, **options})
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     y_hat = field.rollout(y[0], t, method="dopri5")
+    median_us, p95_us = point_fn_us(field, y)
     return {"wall_s": wall, "cpu_s": cpu, "mae": float(np.mean(np.abs(y_hat - y))),
-            "interrupted": bool(field.history["interrupted"])}
+            "point_us": median_us, "point_p95_us": p95_us, "interrupted": bool(field.history["interrupted"])}
 
 
 def main() -> None:
@@ -74,7 +91,8 @@ def main() -> None:
     for seed in args.seeds:
         r = run(seed, t, y, args.progress, iters=args.iters)
         results.append(r)
-        print(f"seed {seed}: train wall {r['wall_s']:6.2f} s  cpu {r['cpu_s']:6.2f} s  MAE {r['mae']:.4f}"
+        print(f"seed {seed}: train wall {r['wall_s']:6.2f} s  cpu {r['cpu_s']:6.2f} s  MAE {r['mae']:.4f}  "
+              f"point_fn {r['point_us']:.1f} us (p95 {r['point_p95_us']:.1f})"
               + ("  (interrupted)" if r["interrupted"] else ""), flush=True)
     if len(results) > 1:
         walls, maes = [r["wall_s"] for r in results], [r["mae"] for r in results]

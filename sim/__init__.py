@@ -1,4 +1,20 @@
-"""sim: run a learned velocity field on a MuJoCo arm in closed loop, perturb it, score it, film it."""
+"""sim: run a learned velocity field on a MuJoCo arm in closed loop, perturb it, score it, film it.
+
+    import lfd, sim
+    from robots import load_robot
+
+    demos = lfd.load_demos("spiral")
+    field = lfd.train("contraction", demos)
+    exp = sim.Experiment(load_robot("panda", actuation="torque"), demos)   # placement + reach check
+    result = exp.run(field, "push")               # scenarios: sim.SCENARIOS
+    print(result.metrics)                          # sim.metrics: tracking, imitation, recovery, ...
+    exp.render(result, "push.mp4")
+
+Lower level: ``Placement`` (task space -> robot), ``make_environment`` (the dm_control
+Environment: Physics + ``FieldTrackingTask``), ``execute`` (the fast loop on that Environment),
+``FieldController`` (twist -> IK -> actuators), the perturbations ``StartOffset``, ``Push``,
+``GoalShift``, ``JointVelocityNoise``, and ``render_rollout``.
+"""
 
 from sim.gl import select_backend
 

@@ -15,23 +15,24 @@ qdot = IK(q, twist) (``robots.DifferentialIK``), then the actuator command:
   tau = RNEA(q, qdot, qddot_ref + k_d (qdot_ref - qdot)) + b qdot, qddot_ref = (qdot_ref - qdot_ref_prev) / dt.
 
 Choice of actuation (measured by scripts/bench_loop.py; Panda, default spiral ~13 cm, horizontal
-plane, dls IK, 500 Hz; 20 N / 0.2 s push on the hand at t = 1 s):
+plane, dls IK, 500 Hz; 20 N / 0.2 s push on the hand at t = 1 s; load average ~3 on 2 cores):
 
     field        actuation                  tracking RMSE  final goal  push max dev  recovery
-    NODE         servo u = q + qdot dt         79.3 mm      66.9 mm      13.7 mm      never
-    NODE         servo + velocity feed-fwd     10.5 mm       0.23 mm     21.1 mm      4.11 s
-    NODE         computed torque (RNEA)         1.01 mm      0.07 mm      5.8 mm      1.59 s
-    contraction  servo u = q + qdot dt         79.6 mm      68.3 mm      13.8 mm      never
-    contraction  servo + velocity feed-fwd     12.6 mm       1.42 mm     21.5 mm      0.98 s
-    contraction  computed torque (RNEA)         1.16 mm      0.71 mm      8.5 mm      0.92 s
+    NODE         servo u = q + qdot dt         79.6 mm      67.4 mm      13.8 mm      never
+    NODE         servo + velocity feed-fwd      7.6 mm       0.12 mm     22.4 mm      4.08 s
+    NODE         computed torque (RNEA)         0.90 mm      0.06 mm      6.0 mm      0.32 s
+    contraction  servo u = q + qdot dt         79.4 mm      68.5 mm      13.8 mm      never
+    contraction  servo + velocity feed-fwd     10.4 mm       1.58 mm     25.0 mm      1.09 s
+    contraction  computed torque (RNEA)         0.95 mm      0.61 mm      8.5 mm      0.82 s
 
 The plain servo command only asks for the distance of one step, so the arm crawls (kp dt / kv
 of the requested speed); the velocity feed-forward fixes the speed but the servo's first-order
-lag (kv / M ~ 1 / (2 w), w = 60 rad/s) still costs ~10 mm. Computed torque cancels the arm's
+lag (time constant M / kv = 1 / (2 zeta w) ~ 8 ms with the robots' w = 60 rad/s) still costs
+~10 mm. Computed torque cancels the arm's
 dynamics with Pinocchio's RNEA on the same model and adds the acceleration feed-forward, so the
-tool follows the field to ~1 mm, 10x better: it is the default. k_d trades tracking against
-compliance: 40 / 80 / 150 / 300 1/s gave 2.7 / 1.5 / 1.0 / 0.9 mm tracking and 24 / 11 / 5.8 /
-2.9 mm push deviation (NODE); 150 keeps the push visible and the tracking at ~1 mm.
+tool follows the field to ~1 mm, ~10x better: it is the default. k_d trades tracking against
+compliance: 40 / 80 / 150 / 300 1/s gave 2.6 / 1.4 / 0.90 / 0.74 mm tracking and 21 / 11 / 6.0 /
+3.0 mm push deviation (NODE); 150 keeps the push visible (> 5 mm) and the tracking below 1 mm.
 """
 
 from __future__ import annotations

@@ -18,6 +18,7 @@ import numpy as np
 from lfd import DemoSet, VelocityField
 from robots import Kinematics, RobotModel
 from sim.controller import Gains, actuation_of
+from sim.errors import SimError
 from sim.metrics import run_metrics
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
 from sim.placement import Placement, base_position
@@ -91,6 +92,8 @@ class Experiment:
             kin.update(robot.q_home)
             self.rotation_ref = kin.ee_rotation().copy()
         self.placement.check_reachable(robot, demos.x, rotation=self.rotation_ref)
+        if not 0 <= demo_index < demos.n_demos:
+            raise SimError(f"demo index {demo_index} out of range: {demos.name} has {demos.n_demos} demos")
         self.demo_index = demo_index
         self.demo_t = demos.t[demo_index] - demos.t[demo_index, 0]
         self.demo_world = self.placement.to_world(demos.x[demo_index])
@@ -100,7 +103,7 @@ class Experiment:
                             feedforward=feedforward)
         self.physics = ArmPhysics.from_robot(robot)
         self.base = base_position(robot)
-        self._unperturbed: dict[tuple, np.ndarray] = {}
+        self._unperturbed: dict[tuple, tuple[VelocityField, np.ndarray]] = {}
 
     def rollout(self, field: VelocityField, perturbations: tuple[Perturbation, ...] = (),
                 progress: bool = False, desc: str = "rollout") -> Rollout:
@@ -126,9 +129,11 @@ class Experiment:
         if ro.push_window_s is not None:
             rest = tuple(p for p in perts if not isinstance(p, Push))
             key = (id(field), rest)
-            if key not in self._unperturbed:
-                self._unperturbed[key] = self.rollout(field, rest, progress, desc=f"{field.learner}/unpushed").ee
-            unperturbed = self._unperturbed[key]
+            cached = self._unperturbed.get(key)
+            if cached is None or cached[0] is not field:
+                cached = (field, self.rollout(field, rest, progress, desc=f"{field.learner}/unpushed").ee)
+                self._unperturbed[key] = cached
+            unperturbed = cached[1]
         ref = self.reference(field, ro)
         metrics: dict[str, Any] = run_metrics(ro.t, ro.ee, ref, ro.goal_world, self.demo_t, self.demo_world,
                                               unperturbed, ro.push_window_s)

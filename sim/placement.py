@@ -9,7 +9,7 @@ A task velocity v maps to the world velocity s A v. For d = 2 the plane normal i
 
 Default plane for a 2-D path on the Panda: horizontal, through the tool point at ``q_home``
 (tool pointing down, held constant). Measured (scripts/bench_loop.py, computed torque), tracking
-RMSE horizontal / vertical: NODE 1.01 / 1.25 mm, contraction 1.16 / 1.33 mm. Nearly all of it is
+RMSE horizontal / vertical: NODE 0.90 / 1.15 mm, contraction 0.95 / 1.20 mm. Nearly all of it is
 made in the first 0.1 s, while the arm, at rest, accelerates to the field's start speed
 (~0.2 m/s) with saturated torques; a vertical path starts by lifting the arm through shoulder
 and elbow and stays saturated longer (NODE: 4 vs 3 steps; 2.8 vs 2.0 mm behind after 0.1 s).

@@ -234,7 +234,9 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
         os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes the file private; a video is not
         os.replace(tmp, p)
     except (OSError, RuntimeError, ValueError) as e:
-        raise RenderError(f"{path}: cannot write the video ({str(e).splitlines()[0]})") from None
+        if _interrupted(e):  # Ctrl-C also killed ffmpeg, and closing it then failed
+            raise KeyboardInterrupt from None
+        raise RenderError(f"{path}: cannot write the video ({(str(e).splitlines() or [''])[0]})") from None
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -290,3 +292,15 @@ def render_rollout(model: mujoco.MjModel, rollout, demo_world: np.ndarray, path:
                 yield r.render(data, cam, overlays, ROBOT_ALPHA)
 
     return write_video(path, frames(), width, height, fps)
+
+
+def _interrupted(e: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is among the exceptions that led to ``e``."""
+    seen: set[int] = set()
+    cur: BaseException | None = e
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, KeyboardInterrupt):
+            return True
+        seen.add(id(cur))
+        cur = cur.__context__
+    return False

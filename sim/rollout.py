@@ -18,7 +18,7 @@ States are recorded at every control step; full ``qpos`` at the video frame time
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import mujoco
@@ -40,7 +40,11 @@ class Rollout:
 
     t : (K+1,) s; ee : (K+1, 3) measured tool positions (world, m); q : (K+1, n) joint positions;
     frame_t : (F,) video frame times; frame_qpos : (F, nq) MuJoCo qpos at those times;
-    step_time_s : (K,) wall time of each control step (controller + perturbations + physics).
+    step_time_s : (K,) wall time of each control step (controller + perturbations + physics);
+    wall_s : the loop's wall time; start_task, goal_task : (d,) actual start and (shifted) goal,
+    task units; goal_world : (3,); push_window_s : (t0, t1) or None; push_force : (3,) N or None;
+    push_body : MuJoCo body id (-1: none); ik_limit_hits : IK solves that clamped to a limit;
+    joint_limit_violations : control steps with an arm joint outside [q_min, q_max] in MuJoCo.
     """
 
     t: np.ndarray
@@ -58,7 +62,6 @@ class Rollout:
     push_body: int
     ik_limit_hits: int
     joint_limit_violations: int
-    extras: dict = field(default_factory=dict)
 
     @property
     def realtime_factor(self) -> float:

@@ -28,7 +28,7 @@ from dm_control.rl import control
 from dm_control.utils import rewards
 from dm_env import specs
 
-from robots import RobotModel, solve_position_ik
+from robots import Kinematics, RobotModel, solve_position_ik
 from sim.controller import FieldController, Gains
 from sim.errors import PlacementError, SimError
 from sim.perturbations import Perturbation, Schedule, compile_schedule
@@ -95,7 +95,6 @@ class FieldTrackingTask(control.Task):
         self.goal_task = np.asarray(goal, dtype=np.float64) + self.schedule.goal_offset_task
         self.goal_world = placement.to_world(self.goal_task)
         if rotation_ref is None and not robot.planar:
-            from robots import Kinematics
             kin = Kinematics(robot)
             kin.update(robot.q_home)
             rotation_ref = kin.ee_rotation().copy()

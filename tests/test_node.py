@@ -55,8 +55,8 @@ def test_quick_training_fits_the_spiral(field: lfd.VelocityField, demos: DemoSet
     assert isinstance(field, NodeField)
     assert rollout_rmse(field, demos) < QUICK_RMSE
     h = field.history
-    assert len(h["loss"]) == QUICK["iters"] and h["iters_done"] == QUICK["iters"]
-    assert h["interrupted"] is False and h["diverged"] is False
+    assert len(h["loss"]) == QUICK["iters"] and h["iterations"] == QUICK["iters"]
+    assert h["interrupted"] is False and h["stopped_nonfinite"] is False
     assert h["seg"] == QUICK["seg"]
     assert h["best_loss"] == min(h["loss"][h["best_iter"]:])
     assert h["best_loss"] < QUICK_LOSS
@@ -73,6 +73,13 @@ def test_same_seed_gives_bit_identical_weights(demos: DemoSet) -> None:
     assert all(torch.equal(sa[k], sb[k]) for k in sa)
     assert a.history["loss"] == b.history["loss"]
     assert not all(torch.equal(sa[k], sc[k]) for k in sa)
+
+
+def test_progress_bar_only_when_asked(demos: DemoSet, capsys: pytest.CaptureFixture[str]) -> None:
+    lfd.train("node", demos, progress=False, **dict(QUICK, iters=5))
+    assert capsys.readouterr().err == ""
+    lfd.train("node", demos, progress=True, **dict(QUICK, iters=5))
+    assert "node:" in capsys.readouterr().err
 
 
 def test_save_load_round_trip_is_bit_identical(field: lfd.VelocityField, tmp_path: Path) -> None:
@@ -133,8 +140,10 @@ def test_fused_mlp_gradient(activation: str) -> None:
     x = (3 * torch.randn(7, 3, dtype=torch.float64)).requires_grad_()
     h = torch.rand(7, 1, dtype=torch.float64)
     c = torch.randn(1, 3, dtype=torch.float64, requires_grad=True)
-    params = [p.detach().clone().requires_grad_() for m in module.linears() for p in (m.weight.t().contiguous(), m.bias)]
-    assert torch.autograd.gradcheck(lambda x, c, *ps: _ScaledMLP.apply(x, h, c, activation, *ps), (x, c, *params))
+    params = [p.detach().clone().requires_grad_()
+              for m in module.linears() for p in (m.weight.t().contiguous(), m.bias)]
+    assert torch.autograd.gradcheck(lambda x, c, *ps: _ScaledMLP.apply(x, h, c, activation, *ps),
+                                    (x, c, *params))
     # the fused dynamics equal the plain module path, values and parameter gradients
     fused, plain = SegmentDynamics(module, fused=True), SegmentDynamics(module, fused=False)
     fused.begin(h)
@@ -166,12 +175,34 @@ def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.Monkey
     f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iters=100, seg_start=10, lr=3e-2))
     h = f.history
     assert h["interrupted"] is True
-    assert h["iters_done"] == len(h["loss"]) == stop_at + 1
+    assert h["iterations"] == len(h["loss"]) == stop_at + 1
     assert h["best_loss"] == min(h["loss"]) and h["best_iter"] == int(np.argmin(h["loss"]))
     kept = [p.detach() for p in f.module.parameters()]
     best = seen[h["best_iter"]]
     assert all(torch.equal(p, best[str(i)].double()) for i, p in enumerate(kept))
     assert np.isfinite(f(demos.x[:, 0])).all()
+
+
+def test_divergence_stops_and_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = []
+    real_step = torch.optim.Adam.step
+
+    def step(self: torch.optim.Adam, *args: Any, **kwargs: Any) -> Any:
+        calls.append(1)
+        out = real_step(self, *args, **kwargs)
+        if len(calls) == 8:
+            with torch.no_grad():
+                for g in self.param_groups:
+                    for p in g["params"]:
+                        p.fill_(float("inf"))
+        return out
+
+    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    with pytest.warns(RuntimeWarning, match="non-finite at iteration 8"):
+        f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iters=50, seg_start=10))
+    h = f.history
+    assert h["stopped_nonfinite"] is True and h["interrupted"] is False and h["iterations"] == 8
+    assert h["best_iter"] < 8 and np.isfinite(f(demos.x[:, 0])).all()
 
 
 @pytest.mark.parametrize("options, message", [
@@ -210,7 +241,8 @@ def test_segments_longer_than_demos_are_a_config_error() -> None:
 def test_adaptive_solver_and_adjoint_train(demos: DemoSet) -> None:
     base = dict(QUICK, iters=15, seg=5, seg_start=5)
     rk4 = lfd.train("node", demos, seed=0, progress=False, **base)
-    dopri = lfd.train("node", demos, seed=0, progress=False, **dict(base, solver="dopri5", rtol=1e-6, atol=1e-8))
+    dopri = lfd.train("node", demos, seed=0, progress=False,
+                      **dict(base, solver="dopri5", rtol=1e-6, atol=1e-8))
     adj = lfd.train("node", demos, seed=0, progress=False, **dict(base, adjoint=True))
     for f in (dopri, adj):
         loss = f.history["loss"]

@@ -248,4 +248,4 @@ def test_model_cache_trains_once_and_keys_on_seed_and_options(tmp_path, demos):
     path.write_bytes(b"not a model")
     f3, _, trained3 = cached_field("contraction", demos, 0, opts, tmp_path, progress=False)
     assert trained3
-    np.testing.assert_array_equal(f1(x), f3(x))     # same seed, same model
+    np.testing.assert_allclose(f1(x), f3(x), rtol=1e-8)     # same seed, same model (to rounding)

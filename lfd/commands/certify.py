@@ -37,14 +37,14 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                               description=__doc__.splitlines()[0])
     p.add_argument("model", help="model file written by 'lfd train'")
     p.add_argument("--box", type=parse_box, metavar="XMIN,XMAX,YMIN,YMAX[,ZMIN,ZMAX]",
-                   help="box to check, user units (default: the demos' box grown by 50%%)")
+                   help="box to check, user units; write --box=-1,1,-1,1 when it starts with a minus (default: the demos' box grown by 50%%)")
     p.add_argument("--demos", metavar="SPEC", help="take the box from these demos (grown by 50%%)")
     p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
                    help=f"at least N grid points (default {DEFAULT_SAMPLES})")
     p.add_argument("--rate", type=float, metavar="LAMBDA",
                    help=f"rate to check, 1/s (default: the model's; {IDENTITY_RATE} for a model without a metric)")
-    p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE,
-                   help=f"slack on the bound, 1/s (default {DEFAULT_TOLERANCE:g})")
+    p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE, metavar="TOL",
+                   help=f"relative round-off slack: certified if worst <= -2 rate + TOL max(1, 2 rate) (default {DEFAULT_TOLERANCE:g})")
     p.add_argument("--json", metavar="PATH", help="write the certificate to this JSON file")
     return p
 

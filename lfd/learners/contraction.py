@@ -28,12 +28,19 @@ because sym(A) = -lambda I - P <= -lambda I. The trajectory from x0 has the clos
 which training uses for trajectory matching. The loss, in normalised units, is
 
     Eq. (C5): L = mean_i |f(x_i) - xd_i|^2 / mean |xd|^2
-                  + w mean_{n,k} |x_n(t_k) - x_demo,n(t_k)|^2 / mean |x_demo|^2,
+                  + w_x mean_{n,k} |x_n(t_k) - x_demo,n(t_k)|^2 / mean |x_demo|^2
+                  + w_D mean_j D(J_phi(z_j)),
 
 with x_n(t) of Eq. (C4) started at demo n's first sample, t_k at ``traj_points`` samples of the
 demo and at T_n (1 + r), r in ``REST_TIMES``, where the target is the goal (a demo rests there
-after its last sample; this stops fits that sweep past the goal and loop back). The loss is
-minimised by full-batch L-BFGS.
+after its last sample; this stops fits that sweep past the goal and loop back), and
+
+    Eq. (C6): D(J) = |J|_F^2 / |det J|^(2/d) - d >= 0,
+
+the conformal distortion of phi (zero iff J is a scaled rotation; for d = 2 it is
+s1/s2 + s2/s1 - 2 in the singular values), at points z_j drawn uniformly from the demos' box
+grown by 100%. It keeps the metric well conditioned, i.e. b/a and the overshoot factor
+sqrt(b/a) of Eq. (C1) small, at a small cost in accuracy. L is minimised by full-batch L-BFGS.
 
 Units: x_n = (x - goal) / s is an isotropic scaling and time is not rescaled, so lambda is the
 same in user time (1/s), and the metric in user units is M(x) = M_n(x_n) / s^2 (``metric``).
@@ -55,8 +62,16 @@ from lfd.field import VelocityField
 from lfd.learners.base import Learner
 from lfd.learners.flows import CouplingFlow, coupling_flow_numpy
 
-REST_TIMES = (0.1, 0.25, 0.5, 1.0)  # Eq. (C5): after T (1 + r) a demo rests at its goal (the origin)
-DEFAULT_RATE = 0.5  # 1/s. Demos of 3-5 s decay by e^-2..e^-4, so 0.5 leaves room to fit them.
+DEFAULT_RATE = 0.5             # 1/s. Demos of 3-5 s decay by e^-2..e^-4, so 0.5 leaves room to fit them.
+REST_TIMES = (0.1, 0.25, 0.5, 1.0)  # Eq. (C5): at T (1 + r) a demo rests at its goal (the origin)
+DISTORTION_POINTS = 256       # Eq. (C6): points z_j per fit ...
+DISTORTION_BOX_GROWTH = 1.0   # ... drawn from the demos' box grown by 100%
+
+
+def distortion(jac: torch.Tensor) -> torch.Tensor:
+    """Eq. (C6): D(J) = |J|_F^2 / |det J|^(2/d) - d, shape (B,), for J : tensor, shape (B, d, d)."""
+    d = jac.shape[-1]
+    return (jac * jac).sum((-2, -1)) / torch.linalg.det(jac).abs() ** (2.0 / d) - d
 
 
 @dataclass
@@ -67,7 +82,8 @@ class ContractionConfig:
     layers, features, length_scale, log_scale_bound : the coupling flow phi (``lfd.learners.flows``)
     damping : learn the extra damping P of Eq. (C2) (else P = 0 and sym(A) = -lambda I)
     iterations : loss evaluations of L-BFGS; batch : velocity points (a fixed seeded subsample)
-    traj_weight, traj_points : w of Eq. (C5) and the samples per demo it compares (w = 0 disables)
+    traj_weight, traj_points : w_x of Eq. (C5) and the samples per demo it compares (0 disables)
+    distortion_weight : w_D of Eq. (C5), the weight of the conformal distortion Eq. (C6) (0 disables)
     """
 
     rate: float = DEFAULT_RATE
@@ -80,13 +96,15 @@ class ContractionConfig:
     batch: int = 1000
     traj_weight: float = 1.0
     traj_points: int = 25
+    distortion_weight: float = 0.01
 
     def __post_init__(self) -> None:
-        for name in ("rate", "length_scale", "log_scale_bound", "traj_weight"):
+        for name in ("rate", "length_scale", "log_scale_bound", "traj_weight", "distortion_weight"):
             v = getattr(self, name)
+            may_be_zero = name.endswith("_weight")
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0 or (v == 0 and name != "traj_weight"):
-                raise ValueError(f"{name} must be a {'non-negative' if name == 'traj_weight' else 'positive'} "
+                    or v < 0 or (v == 0 and not may_be_zero):
+                raise ValueError(f"{name} must be a {'non-negative' if may_be_zero else 'positive'} "
                                  f"number, got {v!r}")
             setattr(self, name, float(v))
         for name in ("layers", "features", "iterations", "batch", "traj_points"):
@@ -138,12 +156,14 @@ class ContractionModule(nn.Module):
         """Eq. (C3). x : tensor, shape (B, d); returns f(x), shape (B, d)."""
         return self.velocity_and_latent(x)[0]
 
-    def velocity_and_latent(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """f(x) of Eq. (C3), shape (B, d), with y = phi(x), shape (B, d), and y* = phi(0), shape (1, d)."""
+    def velocity_and_latent(self, x: torch.Tensor
+                            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """f(x) of Eq. (C3), shape (B, d), with y = phi(x), shape (B, d), y* = phi(0), shape (1, d),
+        and J_phi(x), shape (B, d, d)."""
         y, jac = self.flow.forward_with_jacobian(torch.cat([x, x.new_zeros(1, self.dim)]))
-        y, y_star = y[:-1], y[-1:]
+        y, y_star, jac = y[:-1], y[-1:], jac[:-1]
         v = (y - y_star) @ self.latent_matrix().T              # A (phi(x) - y*)
-        return torch.linalg.solve(jac[:-1], v.unsqueeze(-1)).squeeze(-1), y, y_star
+        return torch.linalg.solve(jac, v.unsqueeze(-1)).squeeze(-1), y, y_star, jac
 
     def metric(self, x: torch.Tensor) -> torch.Tensor:
         """M_n(x) = J_phi(x)' J_phi(x), shape (B, d, d), for x : tensor, shape (B, d)."""
@@ -273,22 +293,28 @@ class ContractionLearner(Learner):
     def _fit(cls, module: ContractionModule, demos: DemoSet, config: ContractionConfig,
              progress: bool) -> dict[str, Any]:
         dtype = next(module.parameters()).dtype
-        x_all = torch.as_tensor(demos.x.reshape(-1, demos.dim), dtype=dtype)
-        v_all = torch.as_tensor(demos.xd.reshape(-1, demos.dim), dtype=dtype)
-        pick = torch.randperm(x_all.shape[0])[:config.batch] if x_all.shape[0] > config.batch else slice(None)
+
+        def tensor(a: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(a, dtype=dtype)
+
+        d, n0 = demos.dim, demos.n_demos
+        # velocity matching: a fixed, seeded subsample of ``batch`` demo points
+        x_all, v_all = tensor(demos.x.reshape(-1, d)), tensor(demos.xd.reshape(-1, d))
+        pick = torch.randperm(len(x_all))[:config.batch] if len(x_all) > config.batch else slice(None)
         x, v = x_all[pick], v_all[pick]
         v_scale = float((v_all * v_all).sum(1).mean())
+        # trajectory matching: traj_points samples per demo, then the goal (the origin) at rest
         k_idx = np.unique(np.linspace(0, demos.n_samples - 1, config.traj_points).round().astype(int))
-        n0 = demos.n_demos
-        x0 = torch.as_tensor(demos.x[:, 0], dtype=dtype)
-        tk = demos.t[:, k_idx] - demos.t[:, :1]
-        xk = demos.x[:, k_idx]
-        tk = np.concatenate([tk, tk[:, -1:] * (1.0 + np.asarray(REST_TIMES))[None]], axis=1)
-        xk = np.concatenate([xk, np.zeros((xk.shape[0], len(REST_TIMES), xk.shape[2]))], axis=1)
-        tk = torch.as_tensor(tk, dtype=dtype)
-        xk = torch.as_tensor(xk, dtype=dtype)
+        t_rel = demos.t[:, k_idx] - demos.t[:, :1]
+        tk = tensor(np.concatenate([t_rel, t_rel[:, -1:] * (1.0 + np.asarray(REST_TIMES))], axis=1))
+        xk = tensor(np.concatenate([demos.x[:, k_idx], np.zeros((n0, len(REST_TIMES), d))], axis=1))
         x_scale = float((xk * xk).sum(-1).mean())
-        x_in = torch.cat([x, x0])
+        # distortion: points drawn from the grown box
+        lo, hi = (tensor(b) for b in demos.bounds(DISTORTION_BOX_GROWTH))
+        z = lo + (hi - lo) * torch.rand(DISTORTION_POINTS, d, dtype=dtype)
+        # one pass of phi and J_phi serves all three terms: rows [x | demo starts | z]
+        nv = len(x)
+        x_in = torch.cat([x, tensor(demos.x[:, 0]), z])
 
         module.train()
         module.init_latent_from_data(x_all, v_all)
@@ -302,12 +328,14 @@ class ContractionLearner(Learner):
 
         def closure() -> torch.Tensor:
             opt.zero_grad()
-            f, y, y_star = module.velocity_and_latent(x_in)
-            err_v = f[:-n0] - v
+            f, y, y_star, jac = module.velocity_and_latent(x_in)
+            err_v = f[:nv] - v
             loss = (err_v * err_v).sum(1).mean() / v_scale
             if config.traj_weight > 0:
-                err_x = module.latent_trajectory(y[-n0:], y_star, tk) - xk
+                err_x = module.latent_trajectory(y[nv:nv + n0], y_star, tk) - xk
                 loss = loss + config.traj_weight * (err_x * err_x).sum(-1).mean() / x_scale
+            if config.distortion_weight > 0:
+                loss = loss + config.distortion_weight * distortion(jac[nv + n0:]).mean()
             value = float(loss.detach())
             if not math.isfinite(value):
                 raise _NonFinite

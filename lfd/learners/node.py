@@ -27,6 +27,7 @@ uniform ones.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
 
@@ -311,10 +312,10 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
     """Train ``module`` in place by multiple shooting on uniform-grid demos (see module docstring).
 
     x : tensor, shape (N, T, d), normalised demos; h : tensor, shape (N,), sample steps.
-    Returns the history: ``loss`` (per iteration), ``seg`` (final), ``best_loss``, ``best_iter``,
-    ``iters_done``, ``interrupted`` (Ctrl-C) and ``diverged`` (non-finite loss). Training, whether
-    it ends, is interrupted or diverges, leaves the module at its best iterate among those at the
-    last segment length reached (losses only compare at equal length).
+    Returns the history: ``loss`` (per iteration), ``seg`` (last), ``best_loss``, ``best_iter``,
+    ``iterations`` (done), ``interrupted`` (Ctrl-C) and ``stopped_nonfinite`` (a non-finite loss).
+    Whether training ends, is interrupted or diverges, the module is left at its best iterate
+    among those at the last segment length reached (losses only compare at equal length).
     """
     dtype = DTYPES[config.dtype]
     module.to(dtype).train()
@@ -330,7 +331,7 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
 
     losses: list[float] = []
     best: tuple[float, int, dict[str, torch.Tensor]] | None = None
-    interrupted = diverged = False
+    interrupted = nonfinite = False
     segments: Segments | None = None
     threads = torch.get_num_threads()
     torch.set_num_threads(TRAIN_THREADS)
@@ -352,7 +353,10 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
                 loss = torch.mean((pred[1:] - w[1:]) ** 2)
                 value = float(loss.item())
                 if not math.isfinite(value):
-                    diverged = True
+                    nonfinite = True
+                    warnings.warn(f"node: the loss became non-finite at iteration {k}; training stopped "
+                                  "and kept the best iterate (a lower lr may help)",
+                                  RuntimeWarning, stacklevel=2)
                     break
                 losses.append(value)
                 if best is None or value < best[0]:
@@ -376,9 +380,9 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
         "seg": segment_length(config, max(len(losses) - 1, 0)),
         "best_loss": best[0] if best else None,
         "best_iter": best[1] if best else None,
-        "iters_done": len(losses),
+        "iterations": len(losses),
         "interrupted": interrupted,
-        "diverged": diverged,
+        "stopped_nonfinite": nonfinite,
     }
 
 
@@ -388,7 +392,8 @@ class NodeField(VelocityField):
     def _numpy_layers(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """(W_i, b_i) in float64 with g(0) folded into the output bias: f(x_n) = g'(x_n)."""
         module: NodeMLP = self.module  # type: ignore[assignment]
-        layers = [(m.weight.detach().numpy().copy(), m.bias.detach().numpy().copy()) for m in module.linears()]
+        layers = [(m.weight.detach().numpy().copy(), m.bias.detach().numpy().copy())
+                  for m in module.linears()]
         if module.goal_equilibrium:
             w_out, b_out = layers[-1]
             g0 = _numpy_mlp(layers, module.activation)(np.zeros(self.dim))
@@ -400,9 +405,11 @@ class NodeField(VelocityField):
         return _numpy_mlp(self._numpy_layers(), self.module.activation)
 
     def point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
-        """x (d,) -> dx/dt (d,) in user units, a few us a call: the normalisation
-        x_n = (x - goal) / s, f = s f_n(x_n) is folded into the first and last layers,
-        W_1' = W_1 / s, b_1' = b_1 - W_1 goal / s, W_L' = s W_L, b_L' = s b_L."""
+        """x (d,) -> dx/dt (d,) in user units, a few us a call, on a snapshot of the weights.
+
+        The normalisation x_n = (x - goal) / s, f = s f_n(x_n) is folded into the first and
+        last layers: W_1' = W_1 / s, b_1' = b_1 - W_1 goal / s, W_L' = s W_L, b_L' = s b_L.
+        """
         layers = self._numpy_layers()
         goal, s = self.norm.goal, float(self.norm.scale)
         (w1, b1), (wl, bl) = layers[0], layers[-1]
@@ -411,7 +418,8 @@ class NodeField(VelocityField):
         return _numpy_mlp(layers, self.module.activation)
 
 
-def _numpy_mlp(layers: list[tuple[np.ndarray, np.ndarray]], activation: str) -> Callable[[np.ndarray], np.ndarray]:
+def _numpy_mlp(layers: list[tuple[np.ndarray, np.ndarray]],
+               activation: str) -> Callable[[np.ndarray], np.ndarray]:
     """x (d,) -> W_L z_{L-1} + b_L with z_i = sigma(W_i z_{i-1} + b_i), z_0 = x, in numpy.
 
     ``ndarray.dot`` is about twice as fast as ``@`` on one vector; reentrant (no shared buffers).
@@ -453,7 +461,8 @@ class NodeLearner(Learner):
     @classmethod
     def build(cls, dim: int, config: NodeConfig) -> nn.Module:
         """A fresh NodeMLP x_n (B, d) -> dx_n/dt (B, d), in the training dtype."""
-        return NodeMLP(dim, config.hidden, config.activation, config.goal_equilibrium).to(DTYPES[config.dtype])
+        module = NodeMLP(dim, config.hidden, config.activation, config.goal_equilibrium)
+        return module.to(DTYPES[config.dtype])
 
     @classmethod
     def fit(cls, module: nn.Module, demos: DemoSet, config: NodeConfig, progress: bool) -> dict[str, Any]:

@@ -42,8 +42,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line ``argv`` (default: sys.argv[1:]); returns the exit code."""
+    import torch
+
     from lfd.errors import LfdError
 
+    # Small networks on a few cores: one intra-op thread is faster and avoids oversubscription
+    # (measured: a spiral rollout 0.37 s on one thread, 3.7-31 s on two under load).
+    torch.set_num_threads(1)
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as e:  # --help (0) or a usage error (2), already printed

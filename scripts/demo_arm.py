@@ -217,9 +217,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as e:
         return int(e.code or 0) if not isinstance(e.code, str) else EXIT_USAGE
+    import torch
+
     import lfd
     from robots import RobotError
 
+    torch.set_num_threads(1)  # small networks: a second intra-op thread only adds contention
     try:
         return run(args)
     except (lfd.LfdError, RobotError, sim.SimError) as e:

@@ -136,6 +136,10 @@ def run(args: argparse.Namespace) -> int:
     field.save(args.out)
     loss = field.history.get("loss") or []
     loss_text = f"final loss {loss[-1]:.4g}" if loss else "no loss recorded"
+    if field.history.get("interrupted"):
+        loss_text += " (interrupted: best model so far kept)"
+    if field.history.get("stopped_nonfinite"):
+        loss_text += " (stopped on a non-finite loss: best model so far kept)"
     print(f"trained {field.learner} on {demos.name} ({demos.n_demos} demos x {demos.n_samples} "
           f"samples, {demos.dim}-D): {loss_text}, {field.history.get('train_time_s', 0.0):.1f} s, "
           f"saved {args.out}")

@@ -5,10 +5,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg.lapack import dsyev
+from scipy.linalg.lapack import dposv, dpotrf, dsyev
 
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
+
+
+_FAST_TOL = 1e-9  # margin of the fast limit test over rounding: a qdot this close to a limit takes the full test
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,12 @@ class DlsBackend:
     (2) velocity: qdot is scaled uniformly by min_i v_max_i / |qdot_i| when above 1, keeping its direction;
     (3) a final clip to both bounds. A joint already beyond a soft bound (a measured q after servo overshoot) may
     not move further out. limit_hits counts the solve() calls where any of these changed qdot.
+
+    Fast paths (same results): a Cholesky factorization of J J^T - eps^2 I that succeeds proves s_min > eps, so
+    the solve is one Cholesky solve (LAPACK dposv) and the eigendecomposition runs only near a singularity; the
+    limits run only when the cheap sufficient test fails: |qdot|^2 <= min_i v_max_i^2 (1 - tol) (so |qdot| < v_max)
+    and |q - mid| <= half - v_max dt - tol (mid, half: centre and half-width of the soft range; so q + qdot dt stays
+    inside it).
     """
 
     def __init__(self, robot: RobotModel, rows: tuple[int, ...], kinematics: Kinematics, gains: DlsGains) -> None:
@@ -48,16 +57,30 @@ class DlsBackend:
         self._q_hi = robot.q_max - gains.limit_margin
         self._v_max = np.asarray(robot.v_max, dtype=float)
         self._all_rows = len(rows) == 6
+        self._shift = self._eps2 * np.eye(len(rows))
+        self._fast_speed2 = float(np.min(self._v_max)) ** 2 * (1.0 - _FAST_TOL)
+        self._mid = 0.5 * (self._q_lo + self._q_hi)
+        self._half = 0.5 * (self._q_hi - self._q_lo) - _FAST_TOL
+        self._unit_gain = gains.posture_gain == 1.0
+        self._fast_dt, self._fast_half = 0.0, self._half
         self.limit_hits = 0
 
     def _resolve(self, jac: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """z + J^T (J J^T + lambda^2 I)^-1 (v - J z) for J (m, k), v (m,), z (k,) -> (k,), with J J^T = U S^2 U^T
-        from one symmetric eigendecomposition (LAPACK dsyev): (J J^T + lambda^2 I)^-1 = U (S^2 + lambda^2)^-1 U^T."""
-        s2, u, _ = dsyev(jac @ jac.T)
+        """z + J^T (J J^T + lambda^2 I)^-1 (v - J z) for J (m, k), v (m,), z (k,) -> (k,). If J J^T - eps^2 I is
+        positive definite (its Cholesky factorization succeeds), lambda = 0 and one Cholesky solve gives the result;
+        else J J^T = U S^2 U^T from a symmetric eigendecomposition (LAPACK dsyev) and
+        (J J^T + lambda^2 I)^-1 = U (S^2 + lambda^2)^-1 U^T."""
+        jjt = jac.dot(jac.T)
+        rhs = v - jac.dot(z)
+        if dpotrf(jjt - self._shift, overwrite_a=1, clean=0)[1] == 0:
+            _, x, info = dposv(jjt, rhs)
+            if info == 0:
+                return z + x.dot(jac)
+        s2, u, _ = dsyev(jjt)
         s2_min = s2[0]
         if s2_min < self._eps2:
             s2 = s2 + self._lam2_max * (1.0 - max(s2_min, 0.0) / self._eps2)
-        return z + jac.T @ (u @ ((u.T @ (v - jac @ z)) / s2))
+        return z + jac.T @ (u @ ((u.T @ rhs) / s2))
 
     def solve(self, q: np.ndarray, twist: np.ndarray, dt: float, kin: Kinematics | None = None) -> np.ndarray:
         """qdot (n,) for joint positions q (n,) and desired tool twist [v; w] (6,) over a step dt [s]."""
@@ -67,8 +90,15 @@ class DlsBackend:
         jac_full = kin.ee_jacobian()
         jac = jac_full if self._all_rows else jac_full[self.rows]
         v = twist if self._all_rows else twist[self.rows]
-        z = self.gains.posture_gain * (self._q_home - q)
+        z = self._q_home - q
+        if not self._unit_gain:
+            z *= self.gains.posture_gain
         qdot = self._resolve(jac, v, z)
+        if dt != self._fast_dt:
+            self._fast_dt, self._fast_half = dt, self._half - self._v_max * dt
+        # ndarray.tolist() + builtin any() costs half of ndarray.any() on 7 entries
+        if qdot.dot(qdot) <= self._fast_speed2 and not any((np.abs(q - self._mid) > self._fast_half).tolist()):
+            return qdot
         lo_pos = np.minimum(self._q_lo - q, 0.0) / dt
         hi_pos = np.maximum(self._q_hi - q, 0.0) / dt
         lo = np.maximum(lo_pos, -self._v_max)

@@ -161,7 +161,7 @@ def fig_weak_strong(weak: Entry, strong: Entry, demos: lfd.DemoSet, path: str) -
               5: true[0] + rng.normal(scale=0.2, size=(5, 2))}
     t = np.arange(0.0, 8.0 + 1e-9, DT)
     fig, axes = plt.subplots(2, 3, figsize=(15, 9.5))
-    colors = plt.cm.viridis(np.linspace(0.0, 0.85, 5))
+    colors = plt.cm.tab10(np.arange(5))
     for row, e in enumerate((weak, strong)):
         for col, k in enumerate((2, 5)):
             ax = axes[row, col]
@@ -180,7 +180,8 @@ def fig_weak_strong(weak: Entry, strong: Entry, demos: lfd.DemoSet, path: str) -
             xs = e.field.rollout(starts[k], t)
             spread = np.max(np.linalg.norm(xs[:, None] - xs[None], axis=-1), axis=(0, 1))
             ax.semilogy(t, spread, ls, label=f"{k} starts: max pairwise distance")
-        ax.semilogy(t, spread[0] * np.exp(-e.field.rate * t), "r:", label=f"exp(-{e.field.rate:g} t) (certified)")
+        ax.semilogy(t, spread[0] * np.exp(-e.field.rate * t), "r:",
+                    label=f"slope of exp(-{e.field.rate:g} t), the certified rate")
         ax.set_xlabel("t [s]")
         ax.set_ylim(1e-8, 5)
         ax.legend(fontsize=8)
@@ -340,7 +341,7 @@ are inflated accordingly; compare the columns with each other, not with other ma
 std 0.01 (the demos span {extent:.2f} units). Models: the NODE with its default options
 ({len(node.field.history['loss'])} Adam iterations, multiple shooting); the contraction learner
 (Eqs. (C1)-(C6) of `lfd/learners/contraction.py`) with the default weak rate
-{WEAK_RATE:g}/s and with a strong rate {STRONG_RATE:g}/s, default options otherwise (150 L-BFGS loss
+{WEAK_RATE:g}/s and with a strong rate {STRONG_RATE:g}/s, default options otherwise ({len(weak.field.history['loss'])} L-BFGS loss
 evaluations). All seeds 0. Every rollout is RK4 with a {DT:g} s step over {HORIZON_FACTOR:g} demo
 durations (15 s). Perturbed starts: demo starts plus N(0, ({START_SPREAD:g} x extent)^2), {N_STARTS} of
 them, seeded; kicks: a displacement of {KICK:g} x extent in a random direction at t = 2.5 s, {N_STARTS}

@@ -62,7 +62,7 @@ from lfd.field import VelocityField
 from lfd.learners.base import Learner
 from lfd.learners.flows import CouplingFlow, coupling_flow_numpy
 
-DEFAULT_RATE = 0.5             # 1/s. Demos of 3-5 s decay by e^-2..e^-4, so 0.5 leaves room to fit them.
+DEFAULT_RATE = 0.5             # 1/s: below the ~1/s decay of 3-5 s demos, so it leaves room to fit them
 REST_TIMES = (0.1, 0.25, 0.5, 1.0)  # Eq. (C5): at T (1 + r) a demo rests at its goal (the origin)
 DISTORTION_POINTS = 256       # Eq. (C6): points z_j per fit ...
 DISTORTION_BOX_GROWTH = 1.0   # ... drawn from the demos' box grown by 100%
@@ -92,7 +92,7 @@ class ContractionConfig:
     length_scale: float = 0.45
     log_scale_bound: float = 2.0
     damping: bool = True
-    iterations: int = 150
+    iterations: int = 200
     batch: int = 1000
     traj_weight: float = 1.0
     traj_points: int = 25
@@ -109,8 +109,9 @@ class ContractionConfig:
             setattr(self, name, float(v))
         for name in ("layers", "features", "iterations", "batch", "traj_points"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < (0 if name == "iterations" else 1):
-                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+            low = 0 if name == "iterations" else 1
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
         if not isinstance(self.damping, bool):
             raise ValueError(f"damping must be true or false, got {self.damping!r}")
 

@@ -72,7 +72,7 @@ class DlsBackend:
         (J J^T + lambda^2 I)^-1 = U (S^2 + lambda^2)^-1 U^T."""
         jjt = jac.dot(jac.T)
         rhs = v - jac.dot(z)
-        if dpotrf(jjt - self._shift, overwrite_a=1, clean=0)[1] == 0:
+        if dpotrf((jjt - self._shift).T, overwrite_a=1, clean=0)[1] == 0:  # .T: Fortran order, factored in place
             _, x, info = dposv(jjt, rhs)
             if info == 0:
                 return z + x.dot(jac)

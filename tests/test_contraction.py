@@ -42,9 +42,9 @@ def strong(spiral: lfd.DemoSet) -> ContractionField:
     return lfd.train("contraction", spiral, seed=0, progress=False, rate=STRONG)
 
 
-def random_flow(dim: int, seed: int) -> CouplingFlow:
+def random_flow(dim: int, seed: int, window: float) -> CouplingFlow:
     torch.manual_seed(seed)
-    flow = CouplingFlow(dim, 5, 16, 0.5, 2.0).double()
+    flow = CouplingFlow(dim, 5, 16, 0.5, 2.0, window).double()
     with torch.no_grad():
         flow.weight.normal_(std=1.0)
         flow.bias.normal_(std=0.3)
@@ -66,9 +66,10 @@ def fitted_rate(field: ContractionField, x0: np.ndarray, t: np.ndarray) -> float
 
 # ---------------------------------------------------------------- the flow phi
 
+@pytest.mark.parametrize("window", [0.0, 1.2])
 @pytest.mark.parametrize("dim", [2, 3])
-def test_flow_jacobian_inverse_and_numpy_path_are_exact(dim: int) -> None:
-    flow = random_flow(dim, seed=dim)
+def test_flow_jacobian_inverse_and_numpy_path_are_exact(dim: int, window: float) -> None:
+    flow = random_flow(dim, seed=dim, window=window)
     x = torch.randn(7, dim, dtype=torch.float64)
     y, jac = (t.detach() for t in flow.forward_with_jacobian(x))
     auto = torch.stack([torch.autograd.functional.jacobian(lambda p: flow(p[None])[0], xi) for xi in x])
@@ -81,6 +82,16 @@ def test_flow_jacobian_inverse_and_numpy_path_are_exact(dim: int) -> None:
         yn, jn = coupling_flow_numpy(params, xi)
         assert np.allclose(yn, yi, rtol=1e-13, atol=1e-13)
         assert np.allclose(jn, ji, rtol=1e-12, atol=1e-12 * scale)
+
+
+def test_window_makes_layers_affine_far_from_the_data() -> None:
+    """With a window, J_phi far out along every axis is the product of the layers' constant scales."""
+    flow, bare = random_flow(2, seed=5, window=1.0), random_flow(2, seed=5, window=0.0)
+    far = torch.tensor([[40.0, 30.0], [-35.0, 45.0]], dtype=torch.float64)
+    _, jac = (t.detach() for t in flow.forward_with_jacobian(far))
+    _, jac_bare = (t.detach() for t in bare.forward_with_jacobian(far))
+    assert float((jac - torch.diag_embed(torch.diagonal(jac, dim1=1, dim2=2))).abs().max()) < 1e-9
+    assert float(jac_bare.abs().max()) > 10.0          # the periodic features alone keep shearing
 
 
 def test_fresh_flow_is_identity_and_distortion_is_zero_only_for_conformal() -> None:

@@ -73,6 +73,7 @@ def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str
         row["n_perturbed_ok"] = int(round(float(np.sum(n_ok))))
         row["train_time_s"] = float(np.mean([_num(r["train_time_s"]) for r in rs]))
         row["step_time_us"] = float(np.mean([_num(r["step_time_us"]) for r in rs]))
+        row["cell_s"] = float(np.sum([_num(r.get("cell_s")) for r in rs]))
         row["fallback"] = any(str(v).startswith("rk4") for r in rs for v in r.get("integrators", {}).values())
         out[shape] = row
     return out
@@ -81,7 +82,8 @@ def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str
 def summarize(records: list[dict[str, Any]], learners: list[str]) -> dict[str, Any]:
     """{learner: {"shapes", "train": {metric: {mean, median}}, "test" (or None), "converged",
     "converged_perturbed" (pooled over all perturbed starts), "shapes_all_converged",
-    "train_time_s" (mean, median, total), "step_time_us"}}."""
+    "train_time_s" (mean, median, total), "step_time_us", "cell_s_total" (wall time of training
+    and scoring all its cells, one process each)}}."""
     out: dict[str, Any] = {}
     for learner in learners:
         rows = per_shape(records, learner)
@@ -99,6 +101,7 @@ def summarize(records: list[dict[str, Any]], learners: list[str]) -> dict[str, A
         s["train_time_s"] = {**_stats([v["train_time_s"] for v in vals]),
                              "total": float(sum(v["train_time_s"] for v in vals))}
         s["step_time_us"] = _stats([v["step_time_us"] for v in vals])
+        s["cell_s_total"] = float(sum(v["cell_s"] for v in vals))
         out[learner] = s
     return out
 
@@ -197,7 +200,9 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
                 f"{100 * s['converged_perturbed']:.1f}% of "
                 f"the perturbed starts end within {radius_mm:g} mm of the goal after {horizon_factor:g}x the "
                 f"longest demo's duration. Hardest shapes by DTW: "
-                + ", ".join(f"{k} ({rows[k]['train']['dtw']:.0f})" for k in worst) + ". ")
+                + ", ".join(f"{k} ({rows[k]['train']['dtw']:.0f})" for k in worst) + ". "
+                f"Its cells took {s['cell_s_total'] / 60:.1f} min of worker time in all "
+                f"(training and scoring, one process each). ")
         if failing:
             text += ("Starts that do not converge on: " + ", ".join(
                 f"{k} ({100 * rows[k]['converged']:.0f}%)" for k in failing) + ".")

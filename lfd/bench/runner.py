@@ -19,6 +19,7 @@ import json
 import math
 import multiprocessing as mp
 import signal
+import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -118,11 +119,13 @@ def load_arrays(cache: str | Path, record: dict[str, Any]) -> dict[str, np.ndarr
 
 
 def run_cell(cell: Cell, cache: str) -> dict[str, Any]:
-    """Train and score one cell, write its NPZ then its JSON (the JSON marks it done)."""
+    """Train and score one cell, write its NPZ then its JSON (the JSON marks it done).
+    The record gets ``hash`` and ``cell_s``, the wall time of training and scoring."""
     from lfd.bench.evaluate import evaluate_cell
 
+    t0 = time.perf_counter()
     record, arrays = evaluate_cell(cell.learner, cell.shape, cell.seed, cell.options, cell.protocol)
-    record = finite_or_none({"hash": cell.hash, **record})
+    record = finite_or_none({"hash": cell.hash, **record, "cell_s": time.perf_counter() - t0})
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     atomic_write(Path(cache) / f"{cell.stem}.npz", lambda f: f.write(buf.getvalue()))

@@ -39,7 +39,7 @@ after its last sample; this stops fits that sweep past the goal and loop back), 
 
 the conformal distortion of phi (zero iff J is a scaled rotation; for d = 2 it is
 s1/s2 + s2/s1 - 2 in the singular values), at points z_j drawn uniformly from the demos' box
-grown by 100%. It keeps the metric well conditioned, i.e. b/a and the overshoot factor
+grown to 3x its size. It keeps the metric well conditioned, i.e. b/a and the overshoot factor
 sqrt(b/a) of Eq. (C1) small, at a small cost in accuracy. L is minimised by full-batch L-BFGS.
 
 Units: x_n = (x - goal) / s is an isotropic scaling and time is not rescaled, so lambda is the
@@ -65,7 +65,7 @@ from lfd.learners.flows import CouplingFlow, coupling_flow_numpy
 DEFAULT_RATE = 0.5             # 1/s: below the ~1/s decay of 3-5 s demos, so it leaves room to fit them
 REST_TIMES = (0.1, 0.25, 0.5, 1.0)  # Eq. (C5): at T (1 + r) a demo rests at its goal (the origin)
 DISTORTION_POINTS = 256       # Eq. (C6): points z_j per fit ...
-DISTORTION_BOX_GROWTH = 1.0   # ... drawn from the demos' box grown by 100%
+DISTORTION_BOX_GROWTH = 2.0   # ... drawn from the demos' box grown by 200% (3x its size)
 
 
 def distortion(jac: torch.Tensor) -> torch.Tensor:
@@ -79,7 +79,8 @@ class ContractionConfig:
     """Options of the contraction learner.
 
     rate : lambda of Eqs. (C1)-(C2), 1/s, > 0 (the guaranteed contraction rate)
-    layers, features, length_scale, log_scale_bound : the coupling flow phi (``lfd.learners.flows``)
+    layers, features, length_scale, window, log_scale_bound : the coupling flow phi
+        (``lfd.learners.flows``; window 0: none), in normalised units
     damping : learn the extra damping P of Eq. (C2) (else P = 0 and sym(A) = -lambda I)
     iterations : loss evaluations of L-BFGS; batch : velocity points (a fixed seeded subsample)
     traj_weight, traj_points : w_x of Eq. (C5) and the samples per demo it compares (0 disables)
@@ -97,11 +98,12 @@ class ContractionConfig:
     traj_weight: float = 1.0
     traj_points: int = 25
     distortion_weight: float = 0.01
+    window: float = 1.5
 
     def __post_init__(self) -> None:
-        for name in ("rate", "length_scale", "log_scale_bound", "traj_weight", "distortion_weight"):
+        for name in ("rate", "length_scale", "log_scale_bound", "traj_weight", "distortion_weight", "window"):
             v = getattr(self, name)
-            may_be_zero = name.endswith("_weight")
+            may_be_zero = name.endswith("_weight") or name == "window"
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or v < 0 or (v == 0 and not may_be_zero):
                 raise ValueError(f"{name} must be a {'non-negative' if may_be_zero else 'positive'} "
@@ -124,7 +126,7 @@ class ContractionModule(nn.Module):
         self.dim = dim
         self.rate = config.rate
         self.flow = CouplingFlow(dim, config.layers, config.features, config.length_scale,
-                                 config.log_scale_bound)
+                                 config.log_scale_bound, config.window)
         self.skew = nn.Parameter(torch.zeros(dim, dim))
         self.damping = nn.Parameter(0.3 * torch.eye(dim)) if config.damping else None
 

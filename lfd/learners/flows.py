@@ -4,11 +4,15 @@ Layer k transforms one coordinate u = k mod d conditioned on the others, c:
 
     Eq. (F1): y_u = x_u exp(s_k(x_c)) + t_k(x_c),   y_c = x_c,
     Eq. (F2): s_k = beta tanh(r_k / beta)            (bounded log-scale, |s_k| < beta),
-    Eq. (F3): (r_k, t_k) = W_k [cos(Omega_k x_c); sin(Omega_k x_c)] / sqrt(H) + b_k,
+    Eq. (F3): (r_k, t_k) = e(x_c) W_k [cos(Omega_k x_c); sin(Omega_k x_c)] / sqrt(H) + b_k,
+              e(x_c) = exp(-|x_c|^2 / (2 R^2))   (R = ``window``; e = 1 without one),
 
 a linear read-out of H random Fourier features with fixed frequencies Omega_k ~ N(0, 1/l^2),
-shape (H, d-1), as in Euclideanizing flows (Rana et al., 2020). W_k starts at zero, so a fresh
-flow is the identity. Each layer is a bijection of R^d with the inverse
+shape (H, d-1), as in Euclideanizing flows (Rana et al., 2020), under a Gaussian window: far
+from the data (|x_c| >> R) each layer tends to a fixed affine map, so phi does not keep folding
+space where there is nothing to fit (without the window the periodic features make J_phi grow
+without bound, and the field stiff, away from the data). W_k starts at zero, so a fresh flow is
+the identity. Each layer is a bijection of R^d with the inverse
 
     Eq. (F4): x_u = (y_u - t_k(y_c)) exp(-s_k(y_c)),
 
@@ -18,8 +22,8 @@ and a Jacobian that differs from the identity in row u only,
 
 so J_phi = J_K ... J_1 is invertible everywhere (det J_phi = exp(sum_k s_k) > 0), and J_phi and
 its inverse are bounded on every bounded set. The feature derivatives are analytic,
-d/dx_c [cos z; sin z] = [-sin z; cos z] Omega_k, so (r, t) and their derivatives come out of one
-matrix product. The flow carries J_phi forward (no autograd needed), so the same code serves
+d/dx_c [cos z; sin z] = [-sin z; cos z] Omega_k and de/dx_c = -e x_c / R^2, so (r, t) and their
+derivatives come out of one matrix product. The flow carries J_phi forward (no autograd needed), so the same code serves
 training, the certificate (where torch.func differentiates it once more) and, in numpy, the
 single-point control-loop path. The K layers' weights are stacked in one tensor so that the
 per-step work that does not depend on x is a handful of tensor operations, not K of them.
@@ -44,18 +48,19 @@ _COND_SLICES: dict[tuple[int, int], slice] = {
 class CouplingFlow(nn.Module):
     """phi = layer_K o ... o layer_1, a diffeomorphism of R^d (Eqs. (F1)-(F5)).
 
-    dim : d in {2, 3}; layers : K; features : H; length_scale : l of Eq. (F3);
-    log_scale_bound : beta of Eq. (F2). The frequencies are drawn from torch's global
+    dim : d in {2, 3}; layers : K; features : H; length_scale : l and window : R of Eq. (F3)
+    (0: no window); log_scale_bound : beta of Eq. (F2). The frequencies are drawn from torch's global
     generator (seed it first) and saved with the weights.
     """
 
     def __init__(self, dim: int, layers: int, features: int, length_scale: float,
-                 log_scale_bound: float) -> None:
+                 log_scale_bound: float, window: float = 0.0) -> None:
         super().__init__()
         if dim not in (2, 3):
             raise ValueError(f"the coupling flow supports d = 2 or 3, got {dim}")
         self.dim, self.n_layers, self.features = dim, layers, features
         self.beta = float(log_scale_bound)
+        self.window = float(window)
         self.feature_scale = float(1.0 / np.sqrt(features))
         self.register_buffer("omega", torch.randn(layers, features, dim - 1) / length_scale)
         self.weight = nn.Parameter(torch.zeros(layers, 2, 2 * features))
@@ -85,12 +90,26 @@ class CouplingFlow(nn.Module):
         z = xc @ self.omega[k].T                                          # (B, H)
         return torch.cat([torch.cos(z), torch.sin(z)], dim=1)            # (B, 2H)
 
+    def _conditioner(self, k: int, xc: torch.Tensor, w: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """(r, t[, dr/dx_c, dt/dx_c]) of layer k: (B, 2) or (B, 2 + 2(d-1)), windowed if ``window``."""
+        if self.window <= 0:
+            return torch.addmm(b[k][:w.shape[1]], self._features(k, xc), w[k].T)
+        raw = self._features(k, xc) @ w[k].T
+        env = torch.exp(-0.5 * (xc * xc).sum(1, keepdim=True) / self.window ** 2)    # (B, 1)
+        out = env * raw[:, :2] + b[k][:2]
+        if raw.shape[1] == 2:
+            return out
+        n = self.dim - 1
+        g = xc / self.window ** 2                                                 # (B, d-1), -de/dx_c / e
+        d_rt = raw[:, 2:].view(-1, 2, n) - raw[:, :2, None] * g[:, None, :]       # (B, 2, d-1)
+        return torch.cat([out, (env[:, :, None] * d_rt).reshape(-1, 2 * n)], dim=1)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """y = phi(x), Eq. (F1) layer by layer; x : tensor, shape (B, d)."""
         w, b = self.weight * self.feature_scale, self.bias
         for k in range(self.n_layers):
             u, c = self._u_c(k)
-            out = torch.addmm(b[k], self._features(k, x[:, c]), w[k].T)  # (B, 2)
+            out = self._conditioner(k, x[:, c], w, b)                    # (B, 2)
             es = torch.exp(self.beta * torch.tanh(out[:, 0] / self.beta))
             x = torch.where(self.masks[k], (x[:, u] * es + out[:, 1]).unsqueeze(-1), x)
         return x
@@ -103,7 +122,7 @@ class CouplingFlow(nn.Module):
         for k in range(self.n_layers):
             u, c = self._u_c(k)
             xu = x[:, u]
-            out = torch.addmm(b[k], self._features(k, x[:, c]), w[k].T)  # (B, 2 + 2(d-1))
+            out = self._conditioner(k, x[:, c], w, b)                    # (B, 2 + 2(d-1))
             th = torch.tanh(out[:, 0] / self.beta)
             es = torch.exp(self.beta * th)
             shear = (xu * es * (1.0 - th * th)).unsqueeze(-1) * out[:, 2:2 + n] + out[:, 2 + n:]
@@ -117,15 +136,16 @@ class CouplingFlow(nn.Module):
         w, b = self.weight * self.feature_scale, self.bias
         for k in reversed(range(self.n_layers)):
             u, c = self._u_c(k)
-            out = torch.addmm(b[k], self._features(k, y[:, c]), w[k].T)
+            out = self._conditioner(k, y[:, c], w, b)
             s = self.beta * torch.tanh(out[:, 0] / self.beta)
             y = torch.where(self.masks[k], ((y[:, u] - out[:, 1]) * torch.exp(-s)).unsqueeze(-1), y)
         return y
 
     def numpy_params(self) -> list[dict[str, Any]]:
         """Each layer as plain float64 data for ``coupling_flow_numpy``: u, c (list), beta,
-        ``omega_aug`` (2H, d) with cos(omega_aug [x_c; 1]) = [cos z; sin z] (the last column holds
-        the phases 0 and -pi/2), and the stacked read-out ``w`` (2 + 2(d-1), 2H), ``b`` (list)."""
+        ``inv_window2`` (1/R^2, 0 without a window), ``omega_aug`` (2H, d) with
+        cos(omega_aug [x_c; 1]) = [cos z; sin z] (the last column holds the phases 0 and -pi/2),
+        and the stacked read-out ``w`` (2 + 2(d-1), 2H), ``b`` (list)."""
         with torch.no_grad():
             w, b = self.readout()
         h = self.features
@@ -135,6 +155,7 @@ class CouplingFlow(nn.Module):
             u, c = self._u_c(k)
             om = self.omega[k].double().numpy()
             layers.append({"u": u, "c": [int(i) for i in np.arange(self.dim)[c]], "beta": self.beta,
+                           "inv_window2": 1.0 / self.window ** 2 if self.window > 0 else 0.0,
                            "omega_aug": np.ascontiguousarray(np.hstack([np.vstack([om, om]), phase])),
                            "w": w[k].double().numpy().copy(), "b": [float(v) for v in b[k]]})
         return layers
@@ -155,20 +176,22 @@ def coupling_flow_numpy(params: list[dict[str, Any]], x: np.ndarray | list[float
     jac = [[1.0 if i == j else 0.0 for j in range(d)] for i in range(d)]
     arg = np.ones(d)                                   # [x_c; 1]
     for p in params:
-        u, c, beta, b = p["u"], p["c"], p["beta"], p["b"]
+        u, c, beta, b, inv_r2 = p["u"], p["c"], p["beta"], p["b"], p["inv_window2"]
         for m, ci in enumerate(c):
             arg[m] = y[ci]
         feats = p["omega_aug"] @ arg
-        out = (p["w"] @ np.cos(feats, out=feats)).tolist()
-        th = math.tanh((out[0] + b[0]) / beta)
+        raw = (p["w"] @ np.cos(feats, out=feats)).tolist()
+        env = math.exp(-0.5 * inv_r2 * sum(y[ci] * y[ci] for ci in c)) if inv_r2 else 1.0
+        th = math.tanh((env * raw[0] + b[0]) / beta)
         es = math.exp(beta * th)
         ds = y[u] * es * (1.0 - th * th)
         row = [es * v for v in jac[u]]
         for m, ci in enumerate(c):
-            shear = ds * out[2 + m] + out[2 + n + m]
+            g = y[ci] * inv_r2
+            shear = env * (ds * (raw[2 + m] - g * raw[0]) + raw[2 + n + m] - g * raw[1])
             jc = jac[ci]
             for j in range(d):
                 row[j] += shear * jc[j]
         jac[u] = row
-        y[u] = y[u] * es + out[1] + b[1]
+        y[u] = y[u] * es + env * raw[1] + b[1]
     return y, jac

@@ -12,10 +12,9 @@ is at most -2 lambda. At every grid point J_f and dM/dt come from forward-mode a
 field's torch module in float64 (``torch.func.jvp`` on the whole batch, one pass per column of
 J_f: the module must act on each row on its own, as every learner's does); nothing is
 finite-differenced. (``vmap(jacfwd(.))`` is avoided: in torch 2.13 it gets ``linalg.solve``
-wrong.) A field with a
-metric (``metric_normalized_torch``, e.g. the contraction learner's J_phi' J_phi) is checked in
-it with its own rate; any other field (the NODE) in the identity metric M = I, where
-g(x) = max eig(J_f + J_f'), with the requested rate or ``IDENTITY_RATE``.
+wrong.) A field with a metric (``metric_normalized_torch``, e.g. the contraction learner's
+J_phi' J_phi) is checked in it with its own rate; any other field (the NODE) in the identity
+metric M = I, where g(x) = max eig(J_f + J_f'), with the requested rate or ``IDENTITY_RATE``.
 
 Units: g is invariant to the isotropic normalisation x_n = (x - goal) / s (J_f is unchanged and M
 scales by 1/s^2 on both sides), so the check runs on normalised coordinates; the reported point
@@ -137,10 +136,11 @@ def generalized_eigenvalues(field: VelocityField, xn: torch.Tensor) -> tuple[tor
         return torch.linalg.eigvalsh(q)[:, -1], torch.ones(xn.shape[0], d, dtype=xn.dtype)
     m, m_dot = jvp(metric_fn, (xn,), (f,))                               # M, dM/dt = (dM/dx) f
     q = jf.transpose(1, 2) @ m + m @ jf + m_dot
-    eig_m = torch.linalg.eigvalsh(m)
     bad = ~torch.isfinite(m).flatten(1).all(1) | ~torch.isfinite(q).flatten(1).all(1)
     eye_b = eye.expand_as(m)
-    low, info = torch.linalg.cholesky_ex(torch.where(bad[:, None, None], eye_b, m))
+    m_ok = torch.where(bad[:, None, None], eye_b, m)
+    eig_m = torch.where(bad[:, None], math.nan, torch.linalg.eigvalsh(m_ok))
+    low, info = torch.linalg.cholesky_ex(m_ok)
     bad |= info != 0                                                     # M not numerically positive definite
     low = torch.where(bad[:, None, None], eye_b, low)
     y = torch.linalg.solve_triangular(low, torch.where(bad[:, None, None], eye_b, q), upper=False)  # L^-1 Q

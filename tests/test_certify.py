@@ -171,3 +171,20 @@ def test_bad_arguments_raise_config_error(models: dict[str, str]) -> None:
         certify(field, np.array([0.0, 0.0]), np.array([1.0, np.inf]))
     with pytest.raises(ConfigError):
         certify(field, tolerance=-1.0)
+
+
+def test_a_metric_that_is_not_positive_definite_is_not_certified(models: dict[str, str], tmp_path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    field = lfd.load(models["weak"])
+    real = field.metric_normalized_torch
+
+    def broken(xn: torch.Tensor) -> torch.Tensor:   # indefinite where x_n > 0.5, NaN where y_n > 0.9
+        m = real(xn)
+        flip = torch.where(xn[:, 0] > 0.5, -1.0, 1.0).to(m.dtype)
+        m = m * torch.stack([torch.ones_like(flip), flip], -1)[:, :, None]
+        return torch.where((xn[:, 1] > 0.9)[:, None, None], torch.nan, m)
+
+    monkeypatch.setattr(field, "metric_normalized_torch", broken)
+    c = certify(field, samples=SAMPLES)
+    assert not c.certified and c.worst == np.inf and 0 < c.n_invalid < c.n_points
+    assert np.isfinite(c.metric_min_eig) and np.isfinite(c.metric_max_eig)

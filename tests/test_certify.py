@@ -188,3 +188,10 @@ def test_a_metric_that_is_not_positive_definite_is_not_certified(models: dict[st
     c = certify(field, samples=SAMPLES)
     assert not c.certified and c.worst == np.inf and 0 < c.n_invalid < c.n_points
     assert np.isfinite(c.metric_min_eig) and np.isfinite(c.metric_max_eig)
+
+
+def test_a_3d_contraction_model_is_certified() -> None:
+    field = lfd.train("contraction", lfd.spiral3d(), seed=0, progress=False, iterations=20, rate=1.0)
+    c = certify(field, samples=SAMPLES)
+    assert c.certified and len(c.argmax) == 3 and c.n_points == 13 ** 3
+    assert c.worst == pytest.approx(latent_worst(field), rel=1e-6)

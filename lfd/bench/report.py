@@ -284,6 +284,18 @@ def figure_grid(records: list[dict[str, Any]], learner: str, shapes: list[str],
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=80))
 
 
+def run_line(run: dict[str, Any]) -> str:
+    """How this invocation ran: workers, wall time, cache use, load."""
+    head = f"- Run: {run['workers']} worker process(es), one torch thread each, on {run['cpus']} CPU cores; "
+    tail = "Timings are inflated by whatever else ran on the machine."
+    if run["computed"] == 0:
+        return head + (f"all {run['cached']} cells came from the cache of earlier runs, with the timings "
+                       f"taken there (each learner's worker time is in the Reading). {tail}")
+    return head + (f"wall time {run['wall_s']:.0f} s for the cells computed in this run ({run['computed']} "
+                   f"computed, {run['cached']} from the cache; each learner's worker time is in the "
+                   f"Reading); load average {run['load_start']} at start, {run['load_end']} at end. {tail}")
+
+
 def write_report(path: str | Path, records: list[dict[str, Any]], learners: list[str],
                  shapes: list[str], protocol: dict[str, Any], run: dict[str, Any],
                  arrays: Callable[[dict[str, Any]], dict[str, np.ndarray]],
@@ -315,11 +327,7 @@ def write_report(path: str | Path, records: list[dict[str, Any]], learners: list
         f"the longest demo's duration, from {7} demo starts, {7 * protocol['ring_points']} ring starts "
         f"({protocol['ring_radius']:g} x extent around each demo start) and {protocol['box_points']} box "
         f"starts (bounding box grown by {100 * protocol['box_grow']:g}%) per shape.",
-        f"- Run: {run['workers']} worker process(es), one torch thread each, on {run['cpus']} CPU cores; "
-        f"wall time {run['wall_s']:.0f} s for the cells computed in this run ({run['computed']} computed, "
-        f"{run['cached']} from the cache; each learner's worker time is in the Reading); load average {run['load_start']} at start, "
-        f"{run['load_end']} at end. "
-        "Timings are inflated by whatever else ran on the machine.",
+        run_line(run),
         "",
         "## Summary (mean / median over shapes)",
         "",

@@ -406,7 +406,11 @@ metric J_phi' J_phi, the NODE in the identity metric at 0.05/s.
   {nn['rate_fit']:.2f}/s (NODE), {wn['rate_fit']:.2f}/s (weak, certified {WEAK_RATE:g}/s) and
   {sn['rate_fit']:.2f}/s (strong, certified {STRONG_RATE:g}/s). Over a finite window the fitted
   value can sit below the certified lambda: the bound is |dx(t)| <= sqrt(b/a) |dx(0)| e^(-lambda t),
-  and the metric's distortion b/a enters as a transient.
+  and the metric's distortion b/a enters as a transient. The metric condition b/a on the box is
+  {weak.cert.metric_max_eig / weak.cert.metric_min_eig:.3g} (weak) and {strong.cert.metric_max_eig / strong.cert.metric_min_eig:.3g} (strong): the strong model bends phi hard to follow
+  the demos as closely as its rate allows, so its guarantee holds with a large constant
+  sqrt(b/a); the learner option `distortion_weight` (Eq. (C6)) trades accuracy for a better
+  conditioned metric.
 - **Efficiency and real time:** training took {nn['train_s']:.1f} s (NODE) against {wn['train_s']:.1f} s
   and {sn['train_s']:.1f} s; one single-point field step costs {nn['step_us']:.1f} us against
   {wn['step_us']:.1f} us (the contraction field evaluates a {weak.field.config['layers']}-layer coupling flow, its Jacobian and a

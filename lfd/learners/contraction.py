@@ -95,7 +95,7 @@ class ContractionConfig:
     damping: bool = True
     iterations: int = 200
     batch: int = 1000
-    traj_weight: float = 1.0
+    traj_weight: float = 10.0
     traj_points: int = 25
     distortion_weight: float = 0.01
     window: float = 1.5

@@ -144,12 +144,12 @@ def test_cli_exit_codes_and_json(models: dict[str, str], tmp_path, capsys) -> No
     assert report["certified"] is True and report["learner"] == "contraction" and report["rate"] == 0.2
     assert report["worst"] <= report["bound"] + report["slack"] and len(report["argmax"]) == 2
     assert main(["certify", models["node"], "--demos", "spiral", "--samples", "500"]) == 1
+    assert main(["certify", models["node"], "--samples", "500"]) == 1   # box from history["demo_box"]
     assert main(["certify", models["node"], "--box=-1,1,-1,1", "--samples", "500", "--rate", "0.1"]) == 1
     assert "NOT CERTIFIED" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv", [
-    ["certify", "{node}", "--samples", "500"],                     # no box stored in a NODE model
     ["certify", "{weak}", "--box", "0,1,0"],                       # malformed box
     ["certify", "{weak}", "--box=1,0,0,1"],                        # empty box
     ["certify", "{weak}", "--box=0,1,0,1,0,1"],                    # 3-D box for a 2-D model

@@ -46,7 +46,9 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = True,
     module = cls.build(demos.dim, config)
     t0 = time.perf_counter()
     history = cls.fit(module, normalize_demos(demos, norm), config, progress)
-    history = {"train_time_s": time.perf_counter() - t0, "seed": seed, **history}
+    lo, hi = demos.bounds()
+    history = {"train_time_s": time.perf_counter() - t0, "seed": seed,
+               "demo_box": [lo.tolist(), hi.tolist()], **history}
     return cls.field_class(module, norm, learner, dataclasses.asdict(config), history)
 
 

@@ -2,14 +2,32 @@
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 import pytest
 import torch
 
+import lfd
 from lfd.field import VelocityField
 from lfd.normalization import Normalization
+
+
+@pytest.fixture(scope="module")
+def one_thread() -> Iterator[None]:
+    """Small-batch torch on a shared 2-core machine: a second intra-op thread measured 10-80x
+    slower rollouts under load (threads wait on each other). Modules that train or roll out
+    use it with ``pytestmark = pytest.mark.usefixtures("one_thread")``."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def spiral() -> lfd.DemoSet:
+    """The default spiral demos, shared by a module's tests."""
+    return lfd.spiral()
 
 
 def linear_field(A: np.ndarray, goal: np.ndarray, scale: float = 1.0,

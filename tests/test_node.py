@@ -25,14 +25,7 @@ QUICK_RMSE = 0.06
 QUICK_LOSS = 3e-4
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread() -> Any:
-    """Small-batch torch on a shared 2-core machine: a second intra-op thread measured 10-80x
-    slower rollouts under load (threads wait on each other), so this module runs on one."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

@@ -106,13 +106,11 @@ def grid(lo: np.ndarray, hi: np.ndarray, samples: int) -> np.ndarray:
 def default_box(field: VelocityField, grow: float = BOX_GROWTH) -> tuple[np.ndarray, np.ndarray] | None:
     """The training demos' box from the model's history, grown by ``grow`` times its size, or None.
 
-    Reads ``history["demo_box"]`` (user units) or ``history["demo_box_normalized"]``.
+    Reads ``history["demo_box"]`` (user units), which ``lfd.train`` stores for every learner.
     """
     h = field.history
     if "demo_box" in h:
         lo, hi = (np.asarray(v, dtype=np.float64) for v in h["demo_box"])
-    elif "demo_box_normalized" in h:
-        lo, hi = (field.norm.from_norm(np.asarray(v, dtype=np.float64)) for v in h["demo_box_normalized"])
     else:
         return None
     pad = (hi - lo) * grow / 2

@@ -281,8 +281,7 @@ class ContractionLearner(Learner):
 
         Runs single-threaded (the tensors are small: one thread is as fast and immune to
         oversubscription). Returns ``loss`` (per evaluation), ``best_loss``, ``iterations``,
-        ``interrupted``, ``stopped_nonfinite`` and ``demo_box_normalized`` (lo, hi of the demos in
-        normalised units, the default box of ``lfd certify``).
+        ``interrupted`` and ``stopped_nonfinite`` (``lfd.train`` adds the demos' box).
         """
         assert isinstance(module, ContractionModule)
         threads = torch.get_num_threads()
@@ -365,7 +364,5 @@ class ContractionLearner(Learner):
         if best["state"] is not None:
             module.load_state_dict(best["state"])
         module.eval()
-        lo, hi = demos.bounds()
         return {"loss": losses, "best_loss": best["loss"] if losses else None, "iterations": len(losses),
-                "interrupted": interrupted, "stopped_nonfinite": nonfinite,
-                "demo_box_normalized": [lo.tolist(), hi.tolist()]}
+                "interrupted": interrupted, "stopped_nonfinite": nonfinite}

@@ -1,13 +1,55 @@
-"""lfd: learn a task-space velocity field from demonstrations (NODE or contracting field)."""
+"""lfd: learn a task-space velocity field from demonstrations (NODE or contracting field).
 
-from lfd.demos import DemoSet, LASA_SHAPES, lasa, load_demos, load_file, spiral, spiral3d
+The public names below are imported on first use (PEP 562), so that ``import lfd.cli`` and
+``lfd --help`` do not pay for torch, scipy and matplotlib.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+
+# MKL's conditional numerical reproducibility: without it, small matrix products take alignment-
+# dependent code paths and a contraction fit differed in the 11th digit in 1 of 8 processes; with
+# it 10 of 10 agreed bit for bit. Must be set before torch loads MKL (import lfd before torch).
+os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
+from typing import TYPE_CHECKING, Any
+
 from lfd.errors import ConfigError, DemoError, LfdError, ModelError
-from lfd.field import VelocityField
-from lfd.learners import LEARNERS, get_learner, load, train
-from lfd.normalization import Normalization
+
+# public name -> the module that defines it
+_LAZY: dict[str, str] = {
+    "DemoSet": "lfd.demos", "LASA_SHAPES": "lfd.demos", "lasa": "lfd.demos", "load_demos": "lfd.demos",
+    "load_file": "lfd.demos", "spiral": "lfd.demos", "spiral3d": "lfd.demos",
+    "VelocityField": "lfd.field",
+    "LEARNERS": "lfd.learners", "get_learner": "lfd.learners", "load": "lfd.learners", "train": "lfd.learners",
+    "Normalization": "lfd.normalization",
+    "Obstacle": "lfd.obstacles", "avoid": "lfd.obstacles", "parse_obstacle": "lfd.obstacles",
+}
+
+_SUBMODULES = ("demos", "field", "learners", "normalization", "metrics", "modelfile", "certify",
+               "plotting", "commands", "cli", "bench", "obstacles", "goal")
+
+if TYPE_CHECKING:
+    from lfd.demos import LASA_SHAPES, DemoSet, lasa, load_demos, load_file, spiral, spiral3d
+    from lfd.field import VelocityField
+    from lfd.learners import LEARNERS, get_learner, load, train
+    from lfd.normalization import Normalization
+    from lfd.obstacles import Obstacle, avoid, parse_obstacle
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    if name in _SUBMODULES:  # ``import lfd; lfd.learners`` worked when this file imported them eagerly
+        return importlib.import_module(f"lfd.{name}")
+    raise AttributeError(f"module 'lfd' has no attribute '{name}'")
+
 
 __all__ = [
     "ConfigError", "DemoError", "DemoSet", "LASA_SHAPES", "LEARNERS", "LfdError", "ModelError",
-    "Normalization", "VelocityField", "get_learner", "lasa", "load", "load_demos", "load_file",
-    "spiral", "spiral3d", "train",
+    "Normalization", "Obstacle", "VelocityField", "avoid", "get_learner", "lasa", "load", "load_demos",
+    "load_file", "parse_obstacle", "spiral", "spiral3d", "train",
 ]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import os
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,6 +18,8 @@ from scipy.signal import savgol_filter
 from lfd.errors import DemoError
 
 MIN_SAMPLES = 10
+MIN_TIME_STEP = 1e-9  # s: finer steps are not a recording of a motion (times scaled by mistake)
+MAX_DURATION = 1e6    # s (11 days): a longer demo is not a recording of a motion either
 GOAL_TOLERANCE = 0.05  # end points must lie within this fraction of the data's extent of their mean
 
 LASA_SHAPES: tuple[str, ...] = (
@@ -63,9 +66,16 @@ class DemoSet:
         if t.ndim == 1:
             t = np.broadcast_to(t, x.shape[:2]).copy()
         _validate(t, x, self.name)
+        with np.errstate(all="ignore"):
+            xd = np.stack([smoothed_velocity(ti, xi) for ti, xi in zip(t, x)])
+            speed2 = np.sum(xd * xd, axis=-1)
+        if not np.isfinite(speed2).all():
+            i = int(np.argmax(~np.isfinite(speed2).all(axis=1)))
+            raise DemoError(f"{self.name}: the velocities of demo {i} overflow (positions or times "
+                            "out of range); give positions in metres or millimetres and times in seconds")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "x", x)
-        object.__setattr__(self, "xd", np.stack([smoothed_velocity(ti, xi) for ti, xi in zip(t, x)]))
+        object.__setattr__(self, "xd", xd)
         object.__setattr__(self, "goal", x[:, -1].mean(axis=0))
 
     @property
@@ -107,18 +117,76 @@ def _validate(t: np.ndarray, x: np.ndarray, name: str) -> None:
     bad = ~np.isfinite(x).all(axis=(1, 2)) | ~np.isfinite(t).all(axis=1)
     if bad.any():
         raise DemoError(f"{name}: NaN or inf in demo {int(np.argmax(bad))}")
-    steps = np.diff(t, axis=1)
-    if (steps <= 0).any():
-        i, k = np.argwhere(steps <= 0)[0]
+    with np.errstate(all="ignore"):
+        steps = np.diff(t, axis=1)
+    if (steps <= 0).any() or not np.isfinite(steps).all():
+        i, k = np.argwhere(~(steps > 0) | ~np.isfinite(steps))[0]
         raise DemoError(f"{name}: time is not increasing in demo {i} at sample {k + 1} "
                         f"(t={t[i, k + 1]:g} after {t[i, k]:g})")
+    if steps.min() < MIN_TIME_STEP:
+        i, k = np.unravel_index(int(np.argmin(steps)), steps.shape)
+        raise DemoError(f"{name}: time step of {steps[i, k]:.3g} s in demo {i} at sample {k + 1}, "
+                        f"below {MIN_TIME_STEP:g} s; times must be in seconds")
+    duration = float(np.max(t[:, -1] - t[:, 0]))
+    if duration > MAX_DURATION:
+        raise DemoError(f"{name}: a demo lasts {duration:.3g} s, more than {MAX_DURATION:g} s; "
+                        "times must be in seconds")
+    with np.errstate(all="ignore"):
+        extent = float(np.max(x.reshape(-1, d).max(0) - x.reshape(-1, d).min(0)))
+    if not np.isfinite(extent):
+        raise DemoError(f"{name}: positions out of range (their extent overflows)")
     ends = x[:, -1]
-    extent = float(np.max(x.reshape(-1, d).max(0) - x.reshape(-1, d).min(0)))
     miss = np.linalg.norm(ends - ends.mean(0), axis=1)
     tol = GOAL_TOLERANCE * max(extent, 1e-12)
     if miss.max() > tol:
         raise DemoError(f"{name}: demos do not end near a common goal (demo {int(np.argmax(miss))} "
                         f"ends {miss.max():.3g} from the mean end point, tolerance {tol:.3g})")
+
+
+# ---------------------------------------------------------------- plausibility (warnings, not errors)
+
+def demo_warnings(demos: DemoSet) -> list[str]:
+    """Signs that demos are probably not what the user meant, one line each (the CLI prints them).
+
+    - times that look like milliseconds: a median time step of at least 1 s over more than 100 s;
+    - a 2-D demo that crosses itself (away from the goal): an autonomous field x -> dx/dt has one
+      velocity per point, so it cannot reproduce a crossing.
+    """
+    out = []
+    steps = np.median(np.diff(demos.t, axis=1))
+    duration = float(np.max(demos.t[:, -1] - demos.t[:, 0]))
+    if steps >= 1.0 and duration > 100.0:
+        out.append(f"{demos.name}: demos last {duration:g} s with a median time step of {steps:g} s; "
+                   "if the times are milliseconds, divide them by 1000")
+    if demos.dim == 2:
+        crossing = [i for i, x in enumerate(demos.x) if _crosses_itself(x, demos.goal)]
+        if crossing:
+            out.append(f"{demos.name}: demo {crossing[0]} crosses itself; a velocity field cannot "
+                       "reproduce a crossing (it has one velocity per point)")
+    return out
+
+
+def _crosses_itself(x: np.ndarray, goal: np.ndarray, max_points: int = 300,
+                    goal_fraction: float = 0.1) -> bool:
+    """Whether the polyline x, shape (T, 2), has two segments at least a tenth of the demo apart
+    that properly cross, outside the disc of ``goal_fraction`` times the demo's extent around
+    ``goal`` (where noise makes small loops). Subsampled to at most ``max_points`` points."""
+    k = max(1, -(-len(x) // max_points))
+    p = np.concatenate([x[::k], x[-1:]]) if (len(x) - 1) % k else x[::k]
+    a, b = p[:-1], p[1:]                                               # segments, (S, 2) each
+    extent = float(np.max(p.max(0) - p.min(0)))
+    far = np.maximum(np.linalg.norm(a - goal, axis=1), np.linalg.norm(b - goal, axis=1)) > goal_fraction * extent
+
+    def orient(o: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+        return np.sign((q[..., 0] - o[..., 0]) * (r[..., 1] - o[..., 1])
+                       - (q[..., 1] - o[..., 1]) * (r[..., 0] - o[..., 0]))
+
+    A, B, C, D = a[:, None], b[:, None], a[None, :], b[None, :]        # (S, 1, 2) and (1, S, 2)
+    with np.errstate(all="ignore"):
+        cross = ((orient(A, B, C) * orient(A, B, D) < 0) & (orient(C, D, A) * orient(C, D, B) < 0))
+    # pairs at least a tenth of the demo apart: noise makes tiny loops between nearby samples
+    i, j = np.triu_indices(len(a), k=max(2, len(a) // 10))
+    return bool(np.any(cross[i, j] & far[i] & far[j]))
 
 
 # ---------------------------------------------------------------- generators
@@ -213,17 +281,33 @@ def load_file(path: str | os.PathLike) -> DemoSet:
             return _load_csv(p, name)
     except DemoError:
         raise
-    except (OSError, ValueError, KeyError) as e:
-        raise DemoError(f"{name}: cannot read ({e})") from None
+    except PermissionError:
+        raise
+    except MemoryError:
+        raise DemoError(f"{name}: too large to load") from None
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, csv.Error) as e:
+        text = str(e).strip()
+        raise DemoError(f"{name}: cannot read ({text.splitlines()[0][:200] if text else type(e).__name__})") from None
     raise DemoError(f"{name}: unknown demo file type '{suffix}' (use .csv or .npz)")
 
 
+def _real_array(a: np.ndarray, key: str, name: str) -> np.ndarray:
+    """``a`` as float64 if it holds real numbers (ints, unsigned ints, floats); else DemoError."""
+    if np.iscomplexobj(a):
+        raise DemoError(f"{name}: {key} holds complex numbers; positions and times must be real")
+    if a.dtype.kind not in "iuf":
+        raise DemoError(f"{name}: {key} must hold numbers, got dtype {a.dtype}")
+    return np.asarray(a, dtype=np.float64)
+
+
 def _load_npz(p: Path, name: str) -> DemoSet:
+    if not zipfile.is_zipfile(p):
+        raise DemoError(f"{name}: not an NPZ file (not a zip archive, or truncated)")
     with np.load(p, allow_pickle=False) as z:
         missing = {"t", "x"} - set(z.files)
         if missing:
             raise DemoError(f"{name}: missing array(s) {', '.join(sorted(missing))} (need t and x)")
-        t, x = np.asarray(z["t"], dtype=np.float64), np.asarray(z["x"], dtype=np.float64)
+        t, x = _real_array(z["t"], "t", name), _real_array(z["x"], "x", name)
     if x.ndim != 3:
         raise DemoError(f"{name}: x must have shape (N, T, d), got {x.shape}")
     if t.ndim == 1:
@@ -236,7 +320,7 @@ def _load_npz(p: Path, name: str) -> DemoSet:
 
 
 def _load_csv(p: Path, name: str) -> DemoSet:
-    with open(p, newline="") as f:
+    with open(p, newline="", encoding="utf-8-sig") as f:  # -sig: spreadsheets may write a BOM
         rows = list(csv.reader(f))
     if not rows:
         raise DemoError(f"{name}: empty file")

@@ -17,3 +17,11 @@ class ModelError(LfdError):
 
 class ConfigError(LfdError):
     """A learner or command option has an invalid value."""
+
+
+class TrainingError(LfdError):
+    """Training failed on the user's data or options, e.g. it never reached a finite loss."""
+
+
+class OutputError(LfdError):
+    """An output path cannot be written, or would overwrite an input."""

@@ -11,8 +11,12 @@ Names and what they measure:
   alignment), insensitive to timing, sensitive to direction.
 - ``chamfer_dtwd``: closest-point (Chamfer) distance, the quantity some papers call "DTWD";
   it ignores order entirely, so it is NOT dynamic time warping.
+- ``dtw_per_sample``: ``dtw`` over all samples divided by the demo's sample count (CONDOR, PUMA).
+- ``chamfer_dtwd_std``: ``chamfer_dtwd`` on data divided by its standard deviation (ELCD, NCDS).
 - ``frechet``: discrete Frechet distance (the "dog leash" length), a max, not a sum.
-- ``swept_area``: swept error area between two planar curves (LASA literature).
+- ``swept_area``: swept error area between two planar curves (LASA literature), each crossed
+  quadrilateral counted as the sum of its two lobes (never under-counts).
+- ``grid_starts`` / ``spurious_attractor_fraction``: the 35 x 35 grid of starts of CONDOR/PUMA.
 - ``velocity_rmse`` / ``cosine_error``: field values against demo velocities.
 - ``final_goal_distance`` / ``convergence_rate`` / ``converged_fraction``: reaching the goal.
 - ``reproduce`` / ``evaluate``: roll a field out from every demo start and score all of the above.
@@ -31,9 +35,9 @@ if TYPE_CHECKING:
     from lfd.field import VelocityField
 
 __all__ = [
-    "PER_DEMO_METRICS", "chamfer_dtwd", "converged_fraction", "convergence_rate", "cosine_error",
-    "dtw", "evaluate", "final_goal_distance", "frechet", "reproduce", "resample", "rmse", "swept_area",
-    "velocity_rmse",
+    "PER_DEMO_METRICS", "chamfer_dtwd", "chamfer_dtwd_std", "converged_fraction", "convergence_rate",
+    "cosine_error", "dtw", "dtw_per_sample", "dtw_step_for", "evaluate", "final_goal_distance", "frechet", "grid_starts",
+    "reproduce", "resample", "rmse", "spurious_attractor_fraction", "swept_area", "velocity_rmse",
 ]
 
 
@@ -107,6 +111,26 @@ def _antidiagonal_dp(c: np.ndarray, combine: str) -> float:
     return float(D[n * w + m])
 
 
+MAX_DP_CELLS = 50_000_000   # a warping table beyond this (3 float64 arrays: 1.2 GB) is refused
+MAX_DTW_CELLS = 4_000_000   # ``evaluate`` subsamples its DTW and Frechet curves to stay below this
+
+
+def _check_table(n: int, m: int) -> None:
+    """ValueError before allocating an n x m distance or warping table beyond MAX_DP_CELLS."""
+    if n * m > MAX_DP_CELLS:
+        raise ValueError(f"a {n} x {m} warping table is too large (limit {MAX_DP_CELLS} cells); "
+                         "subsample the curves (dtw's step)")
+
+
+def dtw_step_for(n: int, m: int, step: int = 1) -> int:
+    """The smallest stride k >= step with ceil(n / k) ceil(m / k) <= MAX_DTW_CELLS: the DTW step
+    ``evaluate`` uses for curves of n and m samples (subsampled DTW where the full matrix is too big)."""
+    k = max(int(step), 1)
+    while -(-n // k) * -(-m // k) > MAX_DTW_CELLS:
+        k += 1
+    return k
+
+
 def dtw(a: np.ndarray, b: np.ndarray, step: int = 1) -> float:
     """Dynamic time warping distance: the minimum, over monotone warping paths, of the SUM of
     Euclidean point distances.
@@ -122,6 +146,7 @@ def dtw(a: np.ndarray, b: np.ndarray, step: int = 1) -> float:
         raise ValueError(f"step must be >= 1, got {step}")
     a, b = _pair(a, b)
     a, b = a[::step], b[::step]
+    _check_table(len(a), len(b))
     return _antidiagonal_dp(cdist(a, b), "sum")
 
 
@@ -133,6 +158,7 @@ def frechet(a: np.ndarray, b: np.ndarray) -> float:
     a : array, shape (n, d); b : array, shape (m, d).
     """
     a, b = _pair(a, b)
+    _check_table(len(a), len(b))
     return _antidiagonal_dp(cdist(a, b), "max")
 
 
@@ -147,23 +173,116 @@ def chamfer_dtwd(a: np.ndarray, b: np.ndarray) -> float:
     return float(cKDTree(b).query(a)[0].mean() + cKDTree(a).query(b)[0].mean())
 
 
-def swept_area(a: np.ndarray, b: np.ndarray) -> float:
-    """Swept error area between two planar curves (Khansari-Zadeh & Billard, LASA literature).
+def dtw_per_sample(a: np.ndarray, b: np.ndarray) -> float:
+    """DTW divided by the number of samples, the "DTW" of CONDOR and PUMA:
 
-    E = sum_{k=0}^{T-2} A(a_k, a_{k+1}, b_{k+1}, b_k), with A the area of the quadrilateral by the
-    shoelace formula, A(p1..p4) = |sum_{i} (x_i y_{i+1} - x_{i+1} y_i)| / 2 (indices mod 4).
-    Two parallel segments of length L at distance c give L c. a : (T, 2); b : (T', 2), resampled
-    to T samples in sample index if T' != T (see ``resample``). A quadrilateral whose sides cross
-    (the curves swap sides between k and k+1) counts the difference of its two lobes.
+    .. math::
+
+        \\mathrm{DTW}_{ps}(a, b) = \\mathrm{DTW}(a, b) / m
+
+    with DTW the summed distance of ``dtw`` over ALL samples (no stride) and m the number of
+    samples of b, the demonstration (CONDOR divides ``similaritymeasures.dtw(y, x)[0]`` by the
+    demo's length). a : array, shape (n, d); b : array, shape (m, d). Units: those of the curves.
+    """
+    a, b = _pair(a, b)
+    return dtw(a, b) / b.shape[0]
+
+
+def chamfer_dtwd_std(a: np.ndarray, b: np.ndarray, std: np.ndarray | None = None) -> float:
+    """Closest-point (Chamfer) distance on standard-deviation-normalised data, the "DTWD" of
+    ELCD and NCDS:
+
+    .. math::
+
+        \\mathrm{chamfer}_\\sigma(a, b) = \\mathrm{chamfer}(a \\oslash \\sigma, b \\oslash \\sigma)
+
+    with ``chamfer_dtwd`` (mean closest-point distance from a to b plus from b to a) and every
+    point divided element-wise by sigma, shape (d,), the per-coordinate standard deviation of
+    the data set (the benchmark passes the std over all demo samples of the shape; default: the
+    std of b's samples). Dimensionless. a : (n, d); b : (m, d).
+    """
+    a, b = _pair(a, b)
+    sigma = b.std(axis=0) if std is None else np.asarray(std, dtype=np.float64)
+    if sigma.shape != (a.shape[1],) or not np.all(sigma > 0):
+        raise ValueError(f"std must have shape ({a.shape[1]},) and be positive, got {sigma}")
+    return chamfer_dtwd(a / sigma, b / sigma)
+
+
+def swept_area(a: np.ndarray, b: np.ndarray) -> float:
+    """Swept error area between two planar curves (Khansari-Zadeh & Billard, LASA literature),
+    counting every region between the curves with a positive sign.
+
+    .. math::
+
+        E = \\sum_{k=0}^{T-2} A(a_k, a_{k+1}, b_{k+1}, b_k)
+
+    with A the area enclosed by the quadrilateral p1 p2 p3 p4 = (a_k, a_{k+1}, b_{k+1}, b_k):
+
+    * a simple quadrilateral (convex or not): the shoelace formula
+      A = |sum_i (x_i y_{i+1} - x_{i+1} y_i)| / 2 (indices mod 4);
+    * a crossed ("bow-tie") quadrilateral, where the curve segments a_k a_{k+1} and b_k b_{k+1}
+      cross at X (the curves swap sides), split at X into its two lobes:
+      A = |tri(a_k, X, b_k)| + |tri(X, a_{k+1}, b_{k+1})|;
+    * where instead the rungs a_{k+1} b_{k+1} and b_k a_k cross at Y (the curves run in
+      opposite directions): A = |tri(a_k, a_{k+1}, Y)| + |tri(Y, b_{k+1}, b_k)|.
+
+    The sum of absolute lobe areas never under-counts the area swept between the curves; the
+    plain shoelace value of a bow-tie is the DIFFERENCE of its lobes (0 for a symmetric one).
+    A curve zig-zagging +-1 around a straight line of 100 unit-spaced samples gives 99 x 0.5 =
+    49.5 (``similaritymeasures.area_between_two_curves``, which re-orders each crossed
+    quadrilateral into a simple one, gives 99: the lobes plus the triangles between them).
+    Two parallel segments of length L at distance c give L c.
+
+    Parameters
+    ----------
+    a : array, shape (T, 2)
+        First curve (e.g. the reproduction).
+    b : array, shape (T', 2)
+        Second curve; resampled to T samples in sample index if T' != T (see ``resample``).
+
+    Returns
+    -------
+    float
+        E, in the curves' units squared.
     """
     a, b = _pair(a, b)
     if a.shape[1] != 2:
         raise ValueError(f"swept area needs 2-D curves, got dimension {a.shape[1]}")
     b = resample(b, a.shape[0])
-    quad = np.stack([a[:-1], a[1:], b[1:], b[:-1]], axis=1)  # (T-1, 4, 2)
-    x, y = quad[..., 0], quad[..., 1]
-    xn, yn = np.roll(x, -1, axis=1), np.roll(y, -1, axis=1)
-    return float(np.sum(np.abs(np.sum(x * yn - xn * y, axis=1)) / 2.0))
+    return float(np.sum(_quad_areas(a[:-1], a[1:], b[1:], b[:-1])))
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """z of u x v for arrays of 2-D vectors, shape (..., 2) -> (...)."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def _tri(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Unsigned triangle areas, each argument of shape (K, 2) -> (K,)."""
+    return 0.5 * np.abs(_cross(q - p, r - p))
+
+
+def _crossing(p: np.ndarray, p2: np.ndarray, q: np.ndarray, q2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where segments p p2 and q q2, shape (K, 2) each, cross in their interiors: a mask, shape
+    (K,), and the crossing points, shape (K, 2) (meaningless where the mask is False)."""
+    r, s, w = p2 - p, q2 - q, q - p
+    den = _cross(r, s)
+    ok = den != 0
+    safe = np.where(ok, den, 1.0)
+    t, u = _cross(w, s) / safe, _cross(w, r) / safe
+    hit = ok & (t > 0) & (t < 1) & (u > 0) & (u < 1)
+    return hit, p + t[:, None] * r
+
+
+def _quad_areas(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, p4: np.ndarray) -> np.ndarray:
+    """Area enclosed by each quadrilateral p1 p2 p3 p4, a crossed one counted as the sum of its
+    two lobes (see ``swept_area``). Each argument has shape (K, 2); returns shape (K,)."""
+    x = np.stack([p1, p2, p3, p4], axis=1)                       # (K, 4, 2)
+    area = 0.5 * np.abs(_cross(x, np.roll(x, -1, axis=1)).sum(axis=1))
+    hit, X = _crossing(p1, p2, p4, p3)                           # the curve segments cross
+    area = np.where(hit, _tri(p1, X, p4) + _tri(X, p2, p3), area)
+    hit2, Y = _crossing(p2, p3, p4, p1)                          # the rungs cross
+    return np.where(hit2 & ~hit, _tri(p1, p2, Y) + _tri(Y, p3, p4), area)
 
 
 def velocity_rmse(field_values: np.ndarray, demo_velocities: np.ndarray) -> float:
@@ -221,6 +340,24 @@ def convergence_rate(final_points: np.ndarray, goal: np.ndarray, radius: float) 
     x = np.asarray(final_points, dtype=np.float64).reshape(-1, np.shape(goal)[-1])
     dist = np.linalg.norm(x - np.asarray(goal, dtype=np.float64), axis=1)
     return float(np.mean(np.isfinite(dist) & (dist <= radius)))
+
+
+def grid_starts(lo: np.ndarray, hi: np.ndarray, n: int = 35) -> np.ndarray:
+    """The n x n grid of starts over the 2-D box [lo, hi], corners included, shape (n^2, 2),
+    x varying fastest: start (i n + j) = (lo_x + j (hi_x - lo_x) / (n - 1), lo_y + i (...)).
+    lo, hi : array, shape (2,)."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    if lo.shape != (2,) or hi.shape != (2,) or n < 2:
+        raise ValueError(f"grid_starts needs 2-D corners and n >= 2, got {lo.shape}, {hi.shape}, n={n}")
+    xx, yy = np.meshgrid(np.linspace(lo[0], hi[0], n), np.linspace(lo[1], hi[1], n))
+    return np.stack([xx.ravel(), yy.ravel()], axis=1)
+
+
+def spurious_attractor_fraction(final_points: np.ndarray, goal: np.ndarray, radius: float) -> float:
+    """Fraction of rollouts that do NOT reach the goal, 1 - ``convergence_rate``: with the final
+    points of rollouts from the 35 x 35 ``grid_starts`` over the demos' box, the spurious-attractor
+    measure of CONDOR and PUMA. final_points : (B, d); goal : (d,)."""
+    return 1.0 - convergence_rate(final_points, goal, radius)
 
 
 def converged_fraction(field: VelocityField, lo: np.ndarray, hi: np.ndarray, n: int,
@@ -302,6 +439,8 @@ def evaluate(field: VelocityField, demos: DemoSet, dtw_step: int = 1,
     velocity, and final_goal_distance is |y_i[T-1] - demos.goal|. ``swept_area`` is reported
     for 2-D demos only. Returns {"per_demo": [{metric: float}] * N, "mean": {metric: float}};
     a diverged rollout scores inf on every position metric, and the mean carries it along.
+    DTW and Frechet run on every k-th sample, k = ``dtw_step_for(T, T, dtw_step)``: ``dtw_step``
+    unless the full T x T table would exceed MAX_DTW_CELLS.
     """
     if demos.dim != field.dim:
         raise ValueError(f"demos are {demos.dim}-D but the field is {field.dim}-D")
@@ -313,8 +452,10 @@ def evaluate(field: VelocityField, demos: DemoSet, dtw_step: int = 1,
     for x, xd, y, f in zip(demos.x, demos.xd, ys, fs):
         row = {"velocity_rmse": velocity_rmse(f, xd), "cosine_error": cosine_error(f, xd)}
         if np.isfinite(y).all():
-            row.update(rmse=rmse(y, x), dtw=dtw(y, x, step=dtw_step), chamfer_dtwd=chamfer_dtwd(y, x),
-                       frechet=frechet(y, x), final_goal_distance=final_goal_distance(y, demos.goal))
+            k = dtw_step_for(len(y), len(x), dtw_step)
+            row.update(rmse=rmse(y, x), dtw=dtw(y, x, step=k), chamfer_dtwd=chamfer_dtwd(y, x),
+                       frechet=frechet(y[::k] if k > 1 else y, x[::k] if k > 1 else x),
+                       final_goal_distance=final_goal_distance(y, demos.goal))
             if demos.dim == 2:
                 row["swept_area"] = swept_area(y, x)
         else:

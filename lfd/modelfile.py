@@ -1,36 +1,42 @@
-"""Model files: atomic writes, and loading that never executes code.
+"""Model files: atomic writes, checksummed payloads, and loading that never executes code.
 
 A model file is a ``torch.save`` of a plain dict (strings, numbers, lists, tensors):
-``{"format_version", "learner", "dim", "config", "normalization", "state_dict", "history"}``.
-It is read back with ``torch.load(..., weights_only=True)``, which refuses pickled code.
+``{"format_version", "learner", "dim", "config", "normalization", "state_dict", "history",
+"checksum"}``. It is read back with ``torch.load(..., weights_only=True)``, which refuses pickled
+code. ``checksum`` is the sha256 of every other entry (``payload_checksum``): the tensors' dtype,
+shape and bytes in key order, and the canonical JSON of the rest, so one flipped byte anywhere
+in the payload is a ``ModelError`` on load, never a silently different field. Weights must be
+finite. Files of format 1 (no checksum) are refused: train the model again.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
+import math
 import os
-import pickle
 import tempfile
-import zipfile
 from pathlib import Path
-from typing import Any, Callable, BinaryIO
+from typing import Any, BinaryIO, Callable
 
-import torch
+from lfd.errors import ModelError, OutputError
 
-from lfd.errors import ModelError
-
-FORMAT_VERSION = 1
-REQUIRED_KEYS = ("format_version", "learner", "dim", "config", "normalization", "state_dict")
+FORMAT_VERSION = 2
+REQUIRED_KEYS = ("format_version", "learner", "dim", "config", "normalization", "state_dict", "checksum")
+MAX_MODEL_BYTES = 2 * 1024**3  # refuse to unpickle larger files: no learner of ours comes near
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> None:
     """Write through ``write(file)`` into a temporary file beside ``path``, fsync, then rename.
 
-    A crash or Ctrl-C mid-write leaves any previous file at ``path`` untouched.
+    A crash, Ctrl-C or SIGTERM (see ``lfd.cli``) mid-write leaves any previous file at ``path``
+    untouched and removes the temporary file. An ``OSError`` names ``path``, not the temporary file.
     """
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    tmp: str | None = None
     try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()
@@ -39,31 +45,192 @@ def atomic_write(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> 
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
         os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
+        tmp = None
+    except OSError as e:
+        raise OSError(e.errno, e.strerror or str(e), str(path)) from None
+    finally:
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
-        raise
+
+
+def check_writable(path: str | os.PathLike, what: str = "output") -> None:
+    """Raise ``OutputError`` unless a file could be written at ``path`` (checked before long work).
+
+    The path must not be a folder, and its folder (or the nearest existing parent, which
+    ``atomic_write`` creates the rest below) must accept a new file: probed by creating and
+    removing an empty temporary file, which also works for root and read-only mounts.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise OutputError(f"{path}: is a folder, not a file ({what})")
+    parent = p.parent
+    while not parent.exists():
+        if parent == parent.parent:
+            break
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{path}: cannot write ({parent} is not a folder)")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".lfd-probe.", dir=parent)
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write ({e.strerror or type(e).__name__})") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether two paths name the same file (the same resolved path, or the same inode)."""
+    try:
+        if Path(a).resolve() == Path(b).resolve():
+            return True
+        return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _canonical(value: Any) -> str:
+    """Canonical JSON of the non-tensor entries: sorted keys, tuples as lists, floats by repr."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=repr)
+
+
+def payload_checksum(payload: dict[str, Any]) -> str:
+    """sha256 hex digest of every entry of ``payload`` except ``checksum``.
+
+    Tensors of ``state_dict`` enter with key, dtype, shape and raw bytes, in key order; every
+    other entry enters as canonical JSON. Raises ``ModelError`` if an entry cannot be hashed.
+    """
+    import torch
+
+    h = hashlib.sha256()
+    try:
+        rest = {k: v for k, v in payload.items() if k not in ("checksum", "state_dict")}
+        h.update(_canonical(rest).encode())
+        state = payload.get("state_dict") or {}
+        for key in sorted(state):
+            t = state[key]
+            if not isinstance(t, torch.Tensor) or t.layout != torch.strided:
+                raise TypeError(f"state_dict entry '{key}' is not a dense tensor")
+            flat = t.detach().cpu().contiguous().reshape(-1)
+            h.update(f"\0{key}\0{t.dtype}\0{tuple(t.shape)}\0".encode())
+            h.update(flat.view(torch.uint8).numpy().tobytes() if flat.numel() else b"")
+    except (TypeError, ValueError, RuntimeError, AttributeError) as e:
+        raise ModelError(f"cannot checksum the model payload ({_first_line(e)})") from None
+    return h.hexdigest()
 
 
 def save_payload(payload: dict[str, Any], path: str | os.PathLike) -> None:
-    """Atomically write a model payload (see module docstring)."""
+    """Atomically write a model payload with its checksum (see module docstring)."""
+    import torch
+
     payload = {"format_version": FORMAT_VERSION, **payload}
+    payload["checksum"] = payload_checksum(payload)
     atomic_write(path, lambda f: torch.save(payload, f))
 
 
-def load_payload(path: str | os.PathLike) -> dict[str, Any]:
-    """Read and check a model payload, with ``weights_only=True``."""
+def load_payload(path: str | os.PathLike, allow_nonfinite: bool = False) -> dict[str, Any]:
+    """Read and check a model payload, with ``weights_only=True``.
+
+    Checks, in order: a readable torch archive of plain data, the required keys and their types,
+    the format version, the checksum, finite weights (unless ``allow_nonfinite``: ``lfd certify``
+    reads such a model to report it NOT certified) and a consistent normalisation. Any failure
+    is a one-line ``ModelError`` naming ``path``.
+    """
+    import torch
+
     p = Path(path)
     if not p.is_file():
         raise ModelError(f"{path}: no such model file")
+    if p.stat().st_size > MAX_MODEL_BYTES:
+        raise ModelError(f"{path}: {p.stat().st_size} bytes is too large for a model file")
+    with open(p, "rb") as f:
+        if f.read(4) != b"PK\x03\x04":  # torch.save's zip archive; never unpickle anything else
+            raise ModelError(f"{path}: not a readable model file (not a torch archive)")
     try:
         payload = torch.load(p, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError) as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise ModelError(f"{path}: not a readable model file ({first})") from None
+    except OSError:
+        raise
+    except Exception as e:  # noqa: BLE001  any reader failure is a bad file; never show torch's advice
+        raise ModelError(f"{path}: not a readable model file ({_load_reason(e)})") from None
+    if isinstance(payload, dict) and payload.get("format_version") == 1:
+        raise ModelError(f"{path}: model format version 1 has no checksum and is no longer read; "
+                         "train the model again")
+    if isinstance(payload, dict) and "format_version" in payload and payload["format_version"] != FORMAT_VERSION:
+        raise ModelError(f"{path}: model format version {str(payload['format_version'])[:20]} is not "
+                         f"supported (this version reads {FORMAT_VERSION})")
     if not isinstance(payload, dict) or any(k not in payload for k in REQUIRED_KEYS):
         raise ModelError(f"{path}: not a model file (missing keys)")
-    if payload["format_version"] != FORMAT_VERSION:
-        raise ModelError(f"{path}: model format version {payload['format_version']} is not supported "
-                         f"(this version reads {FORMAT_VERSION})")
+    try:
+        checksum = payload_checksum(payload)
+    except ModelError as e:
+        raise ModelError(f"{path}: {e}") from None
+    if payload["checksum"] != checksum:
+        raise ModelError(f"{path}: checksum mismatch: the model file is corrupt")
+    _check_contents(payload, str(path), allow_nonfinite)
     return payload
+
+
+def _check_contents(payload: dict[str, Any], path: str, allow_nonfinite: bool = False) -> None:
+    """Types and values of a checksummed payload (a crafted file can carry a valid checksum)."""
+    import torch
+
+    def bad(what: str) -> ModelError:
+        return ModelError(f"{path}: not a valid model file ({what})")
+
+    if not isinstance(payload["learner"], str):
+        raise bad("learner is not a name")
+    dim = payload["dim"]
+    if not isinstance(dim, int) or isinstance(dim, bool) or dim not in (2, 3):
+        raise bad("dim must be 2 or 3")
+    if not isinstance(payload["config"], dict) or not all(isinstance(k, str) for k in payload["config"]):
+        raise bad("config is not a dict of options")
+    state = payload["state_dict"]
+    if not isinstance(state, dict) or not state:
+        raise bad("no weights")
+    for key, t in state.items():
+        if not isinstance(key, str) or not isinstance(t, torch.Tensor):
+            raise bad(f"state_dict entry {str(key)[:40]!r} is not a tensor")
+        if t.is_floating_point() and not allow_nonfinite and not bool(torch.isfinite(t).all()):
+            raise ModelError(f"{path}: the model's weights contain NaN or inf ({key})")
+    norm = payload["normalization"]
+    try:
+        goal = [float(g) for g in norm["goal"]]
+        scale = float(norm["scale"])
+    except (TypeError, KeyError, ValueError, IndexError):
+        raise bad("normalization must hold goal and scale") from None
+    if len(goal) != dim or not all(math.isfinite(g) for g in goal) or not (math.isfinite(scale) and scale > 0):
+        raise bad(f"normalization needs {dim} finite goal coordinates and a positive scale")
+    history = payload.get("history")
+    if history is not None and not isinstance(history, dict):
+        raise bad("history is not a dict")
+    history = history or {}
+    loss = history.get("loss")
+    if loss is not None and (not isinstance(loss, (list, tuple))
+                             or not all(isinstance(v, (int, float)) for v in loss)):
+        raise bad("history loss is not a list of numbers")
+    box = history.get("demo_box")
+    if box is not None:
+        try:
+            ok = (len(box) == 2 and all(len(c) == dim for c in box)
+                  and all(math.isfinite(float(v)) for c in box for v in c))
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise bad(f"history demo_box must be two corners of {dim} finite numbers")
+
+
+def _load_reason(e: BaseException) -> str:
+    """A short reason for a failed torch.load, without torch's advice to disable weights_only."""
+    import pickle
+    import zipfile
+
+    text = str(e)
+    if isinstance(e, pickle.UnpicklingError) or "weights_only" in text.lower() or "Weights only" in text:
+        return "it holds data other than tensors and plain values"
+    if isinstance(e, (EOFError, zipfile.BadZipFile)) or "zip" in text.lower() or "archive" in text.lower():
+        return "not a torch archive, or truncated"
+    return type(e).__name__
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__

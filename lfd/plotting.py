@@ -144,3 +144,18 @@ def field_figure(field: VelocityField, demos: DemoSet, n_perturbed: int = 8, spr
     ax.set_title(title or f"{field.learner} field on {demos.name}", fontsize=11)
     draw_loss(fig.add_subplot(gs[0, 1]), field.history)
     return fig
+
+
+def draw_obstacles(ax: Axes, obstacles: Any, t: float = 0.0) -> None:
+    """Obstacles (``lfd.obstacles.Obstacle``, at time t) on 2-D axes as filled outlines of their
+    surface Gamma = 1 (margin included), or on 3-D axes as points on that surface."""
+    for i, o in enumerate(obstacles):
+        pts = o.surface_points(256 if o.dim == 2 else 600) + (o.offset(t) if o.moving else 0.0)
+        label = "obstacles" if i == 0 else None
+        if o.dim == 2:
+            ref = o.reference_point(t)
+            order = np.argsort(np.arctan2(pts[:, 1] - ref[1], pts[:, 0] - ref[0]))
+            ax.fill(pts[order, 0], pts[order, 1], color="0.35", alpha=0.55, zorder=3, label=label)
+            ax.plot(*ref, "+", color="white", ms=6, zorder=3)
+        else:
+            ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=2, color="0.35", alpha=0.5, label=label)

@@ -7,7 +7,9 @@ and writes one MP4 per run and metrics.json into a fresh folder out/demo_arm_YYY
 Scenarios: none, offset, push, goal (goal moved 2 cm), noise (joint-velocity noise); see
 ``sim.experiment.scenario``. Errors in the input (unknown
 robot or frame, missing model, bad demos, unreachable placement) print one line and exit 2; a
-diverging simulation exits 2 before anything is written.
+diverging simulation exits 2 before anything is written. Output paths are checked before any
+training or simulation; a run that fails or is interrupted (Ctrl-C or SIGTERM: exit 130) while
+writing removes what it wrote, so no incomplete output folder is left behind.
 """
 
 from __future__ import annotations
@@ -22,12 +24,55 @@ import time
 from pathlib import Path
 from typing import Any, NoReturn, Sequence
 
+EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 2, 130, 141
+
+
+_PENDING: list[int] = []  # signals that arrived during the start-up imports
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _defer_interrupt(signum: int, frame: Any) -> None:
+    """During the start-up imports: remember the signal (an interrupt inside an import can surface
+    as another error); a second one ends the process at once."""
+    if _PENDING:
+        print("demo_arm: interrupted", file=sys.stderr)
+        os._exit(EXIT_INTERRUPTED)
+    _PENDING.append(signum)
+
+
+def _interrupts_now() -> None:
+    """From here on SIGINT and SIGTERM raise KeyboardInterrupt (cleanup runs, exit 130); one that
+    came during the imports is raised now."""
+    import signal
+
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _raise_interrupt)
+    except ValueError:  # not the main thread (imported by a test runner's worker): leave them
+        return
+    if _PENDING:
+        _PENDING.clear()
+        raise KeyboardInterrupt
+
+
+if __name__ == "__main__":  # SIGINT and SIGTERM wait until the start-up imports are done
+    import signal
+
+    signal.signal(signal.SIGINT, _defer_interrupt)
+    signal.signal(signal.SIGTERM, _defer_interrupt)
+
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
+try:
+    import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
+except KeyboardInterrupt:  # Ctrl-C during the start-up imports: no traceback
+    print("demo_arm: interrupted", file=sys.stderr)
+    sys.exit(EXIT_INTERRUPTED)
 
-EXIT_USAGE, EXIT_INTERRUPTED = 2, 130
-LEARNER_CHOICES = ("node", "contraction", "both")
+LEARNER_CHOICES = ("node", "contraction", "tracking", "both")
 DEFAULT_SCENARIOS = ("none", "offset", "push")
 
 
@@ -56,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--demos", default="spiral", help="spiral (default), spiral3d, lasa:NAME or a .csv/.npz file")
     p.add_argument("--perturb", type=scenarios, default=DEFAULT_SCENARIOS, metavar="|".join(sim.SCENARIOS) + "|all",
                    help="perturbation scenario(s): one name, a comma list, or all (default: none,offset,push)")
-    p.add_argument("--seed", type=int, default=0, help="training and perturbation seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="training and perturbation seed, 0 to 2^63 - 1 "
+                   "(default 0)")
     p.add_argument("--out", help="output folder (default: a fresh out/demo_arm_YYYYmmdd-HHMMSS)")
     p.add_argument("--video", help="video path (one run), or a base name: PATH_<learner>_<scenario>.mp4")
     p.add_argument("--no-video", action="store_true", help="skip rendering")
@@ -67,10 +113,129 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plane", choices=("auto", "horizontal", "vertical"), default="auto",
                    help="task plane of a 2-D field on a spatial arm (auto: horizontal)")
     p.add_argument("--size-m", type=float, help="path size in metres (default 15%% of the reach)")
+    g = p.add_argument_group("placement of the demos on the robot (default: centred on the tool at the "
+                             "home posture, --size-m across)")
+    g.add_argument("--placement", choices=("auto", "recorded"), default="auto",
+                   help="recorded: run 3-D demos exactly where they were recorded, positions in metres "
+                        "in the robot's base frame (the model's world frame); auto (default): see above")
+    g.add_argument("--origin", type=vector3, metavar="X,Y,Z",
+                   help="world position (m) of the centre of the demos' bounding box (auto placement)")
+    g.add_argument("--scale", type=float, metavar="M_PER_UNIT",
+                   help="metres per demo unit (auto placement; overrides --size-m)")
+    g = p.add_argument_group("the push scenario (default: 20 N for 0.2 s at t = 1 s, seeded direction)")
+    g.add_argument("--push-force", type=float, default=20.0, metavar="N", help="force in newtons")
+    g.add_argument("--push-start", type=float, default=1.0, metavar="S", help="start time in seconds")
+    g.add_argument("--push-duration", type=float, default=0.2, metavar="S", help="duration in seconds")
+    g.add_argument("--push-direction", type=vector3, metavar="X,Y,Z",
+                   help="world direction (normalised; default: drawn from --seed)")
     p.add_argument("--control-hz", type=float, default=500.0, help="control rate in Hz (default 500)")
     p.add_argument("--iters", type=int, help="training iterations (default: the learner's)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--quiet", action="store_true", help="print only the results table and errors "
+                   "(progress bars appear only on a terminal anyway)")
     return p
+
+
+def vector3(text: str) -> tuple[float, float, float]:
+    """argparse type: 'x,y,z' -> three finite floats."""
+    import math
+
+    try:
+        v = tuple(float(s) for s in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(c) for c in v):
+        raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z, got '{text[:40]}'")
+    return v  # type: ignore[return-value]
+
+
+def perturbations(args: argparse.Namespace, name: str) -> tuple[Any, ...]:
+    """The perturbations of scenario ``name``, the push taking its --push-* flags."""
+    if name != "push":
+        return sim.scenario(name, args.seed)
+    return (sim.Push(force_n=args.push_force, duration_s=args.push_duration, start_s=args.push_start,
+                     direction=args.push_direction, seed=args.seed),)
+
+
+def check_push(args: argparse.Namespace) -> None:
+    import math
+
+    import lfd
+
+    if not (math.isfinite(args.push_force) and 0 <= args.push_force <= 1000):
+        raise lfd.ConfigError(f"--push-force must be between 0 and 1000 N, got {args.push_force:g}")
+    if not (math.isfinite(args.push_start) and args.push_start >= 0):
+        raise lfd.ConfigError(f"--push-start must be a time >= 0 s, got {args.push_start:g}")
+    if not (math.isfinite(args.push_duration) and 0 < args.push_duration <= 60):
+        raise lfd.ConfigError(f"--push-duration must be in (0, 60] s, got {args.push_duration:g}")
+    if args.push_direction is not None and not any(args.push_direction):
+        raise lfd.ConfigError("--push-direction must not be zero")
+
+
+def placement(args: argparse.Namespace, robot: Any, demos: Any) -> Any:
+    """The placement the flags ask for, or None for the Experiment's default."""
+    import numpy as np
+
+    import lfd
+
+    if args.placement == "recorded":
+        if args.origin is not None or args.scale is not None or args.size_m is not None:
+            raise lfd.ConfigError("--placement recorded takes no --origin, --scale or --size-m")
+        if demos.dim != 3:
+            raise lfd.ConfigError(f"--placement recorded needs 3-D demos, {demos.name} are {demos.dim}-D")
+        return sim.Placement(np.zeros(3), np.eye(3), 1.0, 3)
+    if args.origin is None and args.scale is None:
+        return None
+    if args.scale is not None and not (np.isfinite(args.scale) and args.scale > 0):
+        raise lfd.ConfigError(f"--scale must be a positive number, got {args.scale:g}")
+    auto = sim.Placement.auto(robot, demos.x, plane=args.plane, size_m=args.size_m)
+    lo, hi = demos.bounds()
+    center = (lo + hi) / 2
+    scale = auto.scale if args.scale is None else float(args.scale)
+    target = auto.to_world(center) if args.origin is None else np.asarray(args.origin, dtype=np.float64)
+    return sim.Placement(target - scale * auto.axes @ center, auto.rotation, scale, auto.dim)
+
+
+def seed(text: str) -> int:
+    """argparse type of --seed: an integer in [0, 2^63 - 1] (lfd's rule, see lfd.commands.seed)."""
+    from lfd.commands import seed as lfd_seed
+
+    return lfd_seed(text)
+
+
+class Outputs:
+    """The files and folders one run writes: checked before the work, removed again if the run
+    fails or is interrupted before it completes (no incomplete output folder)."""
+
+    def __init__(self) -> None:
+        self.files: list[Path] = []
+        self.dirs: list[Path] = []
+
+    def check(self, path: Path, what: str, inputs: dict[str, str | None]) -> None:
+        from lfd.commands import check_output
+
+        check_output(str(path), what, inputs)
+
+    def make_dir(self, path: Path) -> None:
+        """mkdir -p, remembering each folder it created."""
+        missing = []
+        p = path
+        while not p.exists():
+            missing.append(p)
+            p = p.parent
+        path.mkdir(parents=True, exist_ok=True)
+        self.dirs.extend(reversed(missing))
+
+    def rollback(self) -> None:
+        for f in self.files:
+            try:
+                f.unlink()
+            except OSError:
+                pass
+        for d in reversed(self.dirs):
+            try:
+                d.rmdir()
+            except OSError:  # not empty: something else is in it
+                pass
 
 
 def fresh_dir(base: Path) -> Path:
@@ -99,17 +264,41 @@ def fmt(value: Any, scale: float = 1.0, digits: int = 2) -> str:
 
 def run(args: argparse.Namespace) -> int:
     import lfd
-    from lfd.modelfile import atomic_write
     from robots import load_robot
     from sim.modelcache import cached_field
 
-    progress = not args.quiet
+    progress = not args.quiet and sys.stderr.isatty()  # bars only on a terminal
+    verbose = not args.quiet
     if args.model and args.learner == "both":
         raise lfd.ConfigError("--model holds one learner; leave out --learner or name that learner")
     if args.control_hz <= 0 or (args.size_m is not None and args.size_m <= 0):
         raise lfd.ConfigError("--control-hz and --size-m must be positive")
+    check_push(args)
+    outputs = Outputs()
+    out = Path(args.out) if args.out else fresh_dir(
+        Path("out") / f"demo_arm_{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}")
+    json_path = Path(args.json) if args.json else out / "metrics.json"
+    if out.exists() and not out.is_dir():
+        raise lfd.ConfigError(f"{out}: --out exists and is not a folder")
+    inputs = {"model file": args.model, "demo file": args.demos}
+    outputs.check(json_path, "--json", inputs)
+    if not args.no_video:
+        n_runs = (1 if args.model or args.learner not in (None, "both") else 2) * len(args.perturb)
+        learners_ = [args.learner or "node"] if n_runs == len(args.perturb) else ["node", "contraction"]
+        for learner in learners_:
+            for name in args.perturb:
+                path = video_path(args, out, learner, name, single=n_runs == 1)
+                if same_path(path, json_path):
+                    raise lfd.ConfigError(f"{path}: a video and --json would be the same file")
+                outputs.check(path, "video", inputs)
     demos = lfd.load_demos(args.demos)
     robot = load_robot(args.robot, args.ee_frame, actuation=args.actuation)
+    # the placement (reachability) and the push are checked before any training
+    exp = sim.Experiment(robot, demos, placement=placement(args, robot, demos), plane=args.plane,
+                         size_m=args.size_m, control_hz=args.control_hz, ik=args.ik, actuation=args.actuation)
+    if "push" in args.perturb and args.push_start + args.push_duration > exp.duration_s:
+        raise lfd.ConfigError(f"the push ends at {args.push_start + args.push_duration:g} s, after the run "
+                              f"({exp.duration_s:g} s)")
     fields: dict[str, lfd.VelocityField] = {}
     models: dict[str, dict[str, Any]] = {}
     if args.model:
@@ -123,42 +312,67 @@ def run(args: argparse.Namespace) -> int:
         for name in learners:
             options = {} if args.iters is None else _iters_option(name, args.iters)
             t0 = time.perf_counter()
-            field, path, trained = cached_field(name, demos, args.seed, options, progress=progress)
+            field, path, trained = cached_field(name, demos, args.seed, options, progress=progress,
+                                                verbose=verbose)
             fields[name] = field
             models[name] = {"path": str(path), "trained_now": trained, "options": options,
                             "train_time_s": field.history.get("train_time_s"),
                             "load_or_train_s": time.perf_counter() - t0}
-            print(f"{name}: {'trained' if trained else 'cached'} model {path}", file=sys.stderr)
+            if verbose:
+                print(f"{name}: {'trained' if trained else 'cached'} model {path}", file=sys.stderr)
     for name, field in fields.items():
         if field.dim != demos.dim:
             raise lfd.ConfigError(f"the {name} model is {field.dim}-D but the demos {demos.name} are {demos.dim}-D")
 
-    exp = sim.Experiment(robot, demos, plane=args.plane, size_m=args.size_m, control_hz=args.control_hz,
-                         ik=args.ik, actuation=args.actuation)
     results: list[sim.RunResult] = []
     jobs = [(learner, name) for learner in fields for name in args.perturb]
     t_sim = time.perf_counter()
     for learner, name in jobs:
-        if progress:
+        if verbose:
             print(f"running {learner} / {name}", file=sys.stderr)
-        results.append(exp.run(fields[learner], name, seed=args.seed, progress=progress))
+        results.append(exp.run(fields[learner], name, perturbations(args, name), seed=args.seed,
+                               progress=progress))
     t_sim = time.perf_counter() - t_sim
 
-    out = Path(args.out) if args.out else fresh_dir(
-        Path("out") / f"demo_arm_{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        _write_outputs(args, exp, results, models, out, json_path, outputs, t_sim, progress, verbose)
+    except BaseException:
+        outputs.rollback()
+        raise
+    print_table(results)
+    print(f"wrote {json_path}" + ("" if args.no_video else f" and {len(results)} video(s) into {out}"))
+    return 0
+
+
+def same_path(a: Path, b: Path) -> bool:
+    from lfd.modelfile import same_file
+
+    return same_file(a, b)
+
+
+def _write_outputs(args: argparse.Namespace, exp: Any, results: list[Any], models: dict[str, Any],
+                   out: Path, json_path: Path, outputs: Outputs, t_sim: float, progress: bool,
+                   verbose: bool) -> None:
+    """Videos, then metrics.json (atomically, last); every file and folder noted in outputs."""
+    from lfd.modelfile import atomic_write
+
+    outputs.make_dir(out)
     runs: list[dict[str, Any]] = []
     t_video = time.perf_counter()
     for r in results:
         entry: dict[str, Any] = {"learner": r.learner, "scenario": r.scenario,
-                                 "perturbations": [p.describe() for p in sim.scenario(r.scenario, args.seed)],
+                                 "perturbations": [p.describe() for p in perturbations(args, r.scenario)],
                                  "metrics": r.metrics}
         if not args.no_video:
             path = video_path(args, out, r.learner, r.scenario, single=len(results) == 1)
-            if progress:
+            if verbose:
                 print(f"rendering {path}", file=sys.stderr)
             entry["video"] = str(path)
+            outputs.make_dir(path.parent)
+            existed = path.exists()
             entry["video_frames"] = exp.render(r, path, progress=progress)
+            if not existed:
+                outputs.files.append(path)
         runs.append(entry)
     t_video = time.perf_counter() - t_video
     report = {
@@ -169,11 +383,8 @@ def run(args: argparse.Namespace) -> int:
         "runs": runs,
         "timing_s": {"simulation": t_sim, "video": t_video},
     }
-    json_path = Path(args.json) if args.json else out / "metrics.json"
+    outputs.make_dir(json_path.parent)
     atomic_write(json_path, lambda f: f.write(json.dumps(report, indent=2, default=_json_default).encode()))
-    print_table(results)
-    print(f"wrote {json_path}" + ("" if args.no_video else f" and {len(results)} video(s) into {out}"))
-    return 0
 
 
 def _iters_option(learner: str, iters: int) -> dict[str, int]:
@@ -214,26 +425,58 @@ def print_table(results: Sequence[sim.RunResult]) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     try:
+        try:
+            code = _main(argv)
+            sys.stdout.flush()
+            return code
+        except KeyboardInterrupt:
+            print("demo_arm: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except BrokenPipeError:  # ``demo_arm.py | head``: the reader has gone; end quietly
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError):
+                pass
+            return EXIT_BROKEN_PIPE
+    except KeyboardInterrupt:  # a second Ctrl-C while reporting the first
+        return EXIT_INTERRUPTED
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    import warnings
+
+    try:
         args = build_parser().parse_args(argv)
     except SystemExit as e:
         return int(e.code or 0) if not isinstance(e.code, str) else EXIT_USAGE
     import torch
 
     import lfd
+    import lfd.demos  # noqa: F401  (preloaded while interrupts wait: scipy, torchdiffeq)
+    import lfd.learners  # noqa: F401
     from robots import RobotError
 
+    if __name__ == "__main__" or _PENDING:
+        _interrupts_now()
     torch.set_num_threads(1)  # small networks: a second intra-op thread only adds contention
-    try:
-        return run(args)
-    except (lfd.LfdError, RobotError, sim.SimError) as e:
-        print(f"demo_arm: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
-        return EXIT_USAGE
-    except OSError as e:
-        print(f"demo_arm: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
-        return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("demo_arm: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            return run(args)
+        except BrokenPipeError:
+            raise
+        except (lfd.LfdError, RobotError, sim.SimError) as e:
+            print(f"demo_arm: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+            return EXIT_USAGE
+        except OSError as e:
+            print(f"demo_arm: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
+            return EXIT_USAGE
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: Any = None, line: str | None = None) -> None:
+    text = str(message).strip()
+    print(f"demo_arm: warning: {text.splitlines()[0] if text else category.__name__}", file=sys.stderr)
 
 
 if __name__ == "__main__":

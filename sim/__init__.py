@@ -10,6 +10,13 @@
     print(result.metrics)                          # sim.metrics: tracking, imitation, recovery, ...
     exp.render(result, "push.mp4")
 
+As a dm_env environment (for RL; gymnasium through ``shimmy.DmControlCompatibilityV0``, the
+``gym`` extra), in one call:
+
+    env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
+    ts = env.reset()                               # observations: sim.OBSERVATION_KEYS
+    ts = env.step(v)                               # v: task velocity, shape (d,)
+
 Lower level: ``Placement`` (task space -> robot), ``make_environment`` (the dm_control
 Environment: Physics + ``FieldTrackingTask``), ``execute`` (the fast loop on that Environment),
 ``FieldController`` (twist -> IK -> actuators), the perturbations ``StartOffset``, ``Push``,

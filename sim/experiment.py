@@ -4,6 +4,13 @@ scenarios with any learned field, scored (``sim.metrics``) and optionally filmed
 The run starts at the start of demo ``demo_index`` and lasts that demo's duration plus
 ``settle_s``. Push metrics compare with the same run without the push, which is run (once per
 field) when needed.
+
+A field with a phase (``lfd.learners.tracking``) runs through ``sim.rollout.PhaseLoop`` (the loop
+carries s), its reference is the joint (x, s) rollout, and its runs also report, from the phase
+trace: ``path_error_m`` (|p(t) - r(s(t))| in world at the end), ``path_recovery_time_s`` (after a
+push or a hold: from its start until |p - r(s)| stays <= 5 mm), ``phase_lag_s`` (T max_t (s_u(t) -
+s(t)), s_u the run without the push or hold) and, with a hold, ``phase_advance_hold`` (s at the
+hold's end minus s at its start) beside ``phase_advance_free`` (the hold's duration / T).
 """
 
 from __future__ import annotations
@@ -19,26 +26,28 @@ from lfd import DemoSet, VelocityField
 from robots import Kinematics, RobotModel
 from sim.controller import Gains, actuation_of
 from sim.errors import SimError
-from sim.metrics import run_metrics
+from sim.metrics import RECOVERY_TOLERANCE_M, recovery_time, run_metrics
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
 from sim.placement import Placement, base_position
 from sim.render import FPS, HEIGHT, WIDTH, render_rollout
-from sim.rollout import Rollout, execute
+from sim.rollout import Hold, PhaseLoop, Rollout, execute
 from sim.task import ArmPhysics, make_environment
 
-SCENARIOS: tuple[str, ...] = ("none", "offset", "push", "goal", "noise")
+SCENARIOS: tuple[str, ...] = ("none", "offset", "push", "goal", "noise", "hold")
 
 
 def scenario(name: str, seed: int = 0) -> tuple[Perturbation, ...]:
     """The perturbations of a named scenario: ``none``; ``offset`` (start 2 cm off the demo's
     start); ``push`` (20 N for 0.2 s on the tool's body at t = 1 s); ``goal`` (goal moved 2 cm);
-    ``noise`` (joint-velocity noise 0.01 rad/s per control step). Directions are drawn from seed."""
+    ``noise`` (joint-velocity noise 0.01 rad/s per control step); ``hold`` (the arm held still from
+    t = 1 s for 1 s, ``sim.rollout.Hold``). Directions are drawn from seed."""
     table: dict[str, tuple[Perturbation, ...]] = {
         "none": (),
         "offset": (StartOffset(distance_m=0.02, seed=seed),),
         "push": (Push(force_n=20.0, duration_s=0.2, start_s=1.0, seed=seed),),
         "goal": (GoalShift(distance_m=0.02, seed=seed),),
         "noise": (JointVelocityNoise(std_rad_s=0.01, seed=seed),),
+        "hold": (Hold(start_s=1.0, duration_s=1.0),),  # type: ignore[dict-item]
     }
     if name not in table:
         raise ValueError(f"unknown scenario '{name}'; known: {', '.join(SCENARIOS)}")
@@ -64,6 +73,33 @@ def integrate(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, t: np.ndarr
             x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         out[k] = x
     return out
+
+
+def integrate_phase(fn: Callable[[np.ndarray, float], tuple[np.ndarray, float]], x0: np.ndarray,
+                    t: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Classic RK4 of the phase field (x, s) -> (dx/dt, ds/dt) (Eqs. (T3)-(T4) of
+    ``lfd.learners.tracking``) from x0, shape (d,), and s = 0 over t, shape (T,). Returns x,
+    shape (T, d), and s, shape (T,)."""
+    x = np.asarray(x0, dtype=np.float64).copy()
+    s = 0.0
+    xs, ss = np.empty((len(t), len(x))), np.empty(len(t))
+    xs[0], ss[0] = x, s
+    for k in range(1, len(t)):
+        h = (t[k] - t[k - 1]) / substeps
+        for _ in range(substeps):
+            v1, s1 = fn(x, s)
+            v2, s2 = fn(x + 0.5 * h * v1, s + 0.5 * h * s1)
+            v3, s3 = fn(x + 0.5 * h * v2, s + 0.5 * h * s2)
+            v4, s4 = fn(x + h * v3, s + h * s3)
+            x = x + (h / 6.0) * (v1 + 2.0 * v2 + 2.0 * v3 + v4)
+            s = min(1.0, s + (h / 6.0) * (s1 + 2.0 * s2 + 2.0 * s3 + s4))
+        xs[k], ss[k] = x, s
+    return xs, ss
+
+
+def has_phase(field: VelocityField) -> bool:
+    """Whether the field carries a phase state (``phase_point_fn``)."""
+    return hasattr(field, "phase_point_fn")
 
 
 @dataclass
@@ -103,21 +139,31 @@ class Experiment:
                             feedforward=feedforward)
         self.physics = ArmPhysics.from_robot(robot)
         self.base = base_position(robot)
-        self._unperturbed: dict[tuple, tuple[VelocityField, np.ndarray]] = {}
+        self._unperturbed: dict[tuple, tuple[VelocityField, np.ndarray, np.ndarray | None]] = {}
 
     def rollout(self, field: VelocityField, perturbations: tuple[Perturbation, ...] = (),
                 progress: bool = False, desc: str = "rollout") -> Rollout:
-        """One closed-loop run of ``field`` with ``perturbations``."""
+        """One closed-loop run of ``field`` with ``perturbations`` (a ``Hold`` among them clamps the arm;
+        a phase field runs through ``PhaseLoop``)."""
+        holds = [p for p in perturbations if isinstance(p, Hold)]
+        rest = tuple(p for p in perturbations if not isinstance(p, Hold))
         env = make_environment(self.robot, self.placement, self.start, field.goal,
-                               duration_s=self.duration_s, perturbations=perturbations,
+                               duration_s=self.duration_s, perturbations=rest,
                                rotation_ref=self.rotation_ref, physics=self.physics, **self.options)
-        return execute(env, field.point_fn(), progress=progress, desc=desc)
+        fn: Callable[[np.ndarray], np.ndarray] = field.point_fn()
+        if has_phase(field):
+            start = env.task.start_task - env.task.schedule.goal_offset_task
+            fn = PhaseLoop(field, env.task.control_dt, start)
+        return execute(env, fn, progress=progress, desc=desc, hold=holds[0] if holds else None)
 
     def reference(self, field: VelocityField, rollout: Rollout) -> np.ndarray:
         """p_ref(t_k), shape (K+1, 3): the task-space rollout of the (goal-shifted) field from the
         run's measured start, x_ref = dg + Phi_t(x0 - dg), mapped to world (``integrate``)."""
         shift = rollout.goal_task - np.asarray(field.goal)
         x0 = self.placement.to_task(rollout.ee[0])
+        if has_phase(field):
+            x, _ = integrate_phase(field.phase_point_fn(x0 - shift), x0 - shift, rollout.t)
+            return self.placement.to_world(x + shift)
         return self.placement.to_world(integrate(field.point_fn(), x0 - shift, rollout.t) + shift)
 
     def run(self, field: VelocityField, name: str, perturbations: tuple[Perturbation, ...] | None = None,
@@ -126,12 +172,14 @@ class Experiment:
         perts = scenario(name, seed) if perturbations is None else perturbations
         ro = self.rollout(field, perts, progress, desc=f"{field.learner}/{name}")
         unperturbed = None
-        if ro.push_window_s is not None:
-            rest = tuple(p for p in perts if not isinstance(p, Push))
+        window = ro.push_window_s or ro.hold_window_s
+        if window is not None:
+            rest = tuple(p for p in perts if not isinstance(p, (Push, Hold)))
             key = (id(field), rest)
             cached = self._unperturbed.get(key)
             if cached is None or cached[0] is not field:
-                cached = (field, self.rollout(field, rest, progress, desc=f"{field.learner}/unpushed").ee)
+                free = self.rollout(field, rest, progress, desc=f"{field.learner}/unpushed")
+                cached = (field, free.ee, free.phase)
                 self._unperturbed[key] = cached
             unperturbed = cached[1]
         ref = self.reference(field, ro)
@@ -139,7 +187,30 @@ class Experiment:
                                               unperturbed, ro.push_window_s)
         metrics.update(joint_limit_violations=ro.joint_limit_violations, ik_limit_hits=ro.ik_limit_hits,
                        realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us)
+        if ro.phase is not None:
+            metrics.update(self.phase_metrics(field, ro, window, None if window is None else cached[2]))
         return RunResult(field.learner, name, ro, ref, metrics)
+
+    def phase_metrics(self, field: VelocityField, ro: Rollout, window: tuple[float, float] | None,
+                      free_phase: np.ndarray | None) -> dict[str, Any]:
+        """The phase metrics of a run of a phase field (module docstring)."""
+        shift = ro.goal_task - np.asarray(field.goal)
+        x0 = self.placement.to_task(ro.ee[0]) - shift
+        path = self.placement.to_world(field.reference(ro.phase, x0) + shift)      # (K+1, 3)
+        err = np.linalg.norm(ro.ee - path, axis=1)
+        out: dict[str, Any] = {"path_error_m": float(err[-1]), "path_error_max_after_1s_m":
+                               float(err[ro.t >= 1.0].max()) if np.any(ro.t >= 1.0) else None,
+                               "final_phase": float(ro.phase[-1])}
+        if window is not None:
+            out["path_recovery_time_s"] = recovery_time(ro.t, err, window, RECOVERY_TOLERANCE_M)
+            if free_phase is not None:
+                out["phase_lag_s"] = float(np.max(free_phase - ro.phase) * field.duration)
+                out["phase_lag_end_s"] = float((free_phase[-1] - ro.phase[-1]) * field.duration)
+        if ro.hold_window_s is not None:
+            k0, k1 = (int(round(v / (ro.t[1] - ro.t[0]))) for v in ro.hold_window_s)
+            out["phase_advance_hold"] = float(ro.phase[k1] - ro.phase[k0])
+            out["phase_advance_free"] = float((ro.hold_window_s[1] - ro.hold_window_s[0]) / field.duration)
+        return out
 
     def render(self, result: RunResult, path: str | os.PathLike, width: int = WIDTH, height: int = HEIGHT,
                fps: float = FPS, progress: bool = False) -> int:

@@ -3,8 +3,10 @@
 The file is ``<cache_dir>/<learner>-<key>.pt`` with key the first 16 hex digits of
 sha256(JSON of learner, seed, the learner's full config (its defaults filled in) and the sha256
 of the demos' t and x arrays), so a change to any of them, a changed default included, trains a
-new model (a change of a learner's code alone does not: delete the cache then). Files are written atomically by ``VelocityField.save``; a
-cached file that cannot be read is trained again and replaced.
+new model (a change of a learner's code alone does not: delete the cache then). Files are written
+atomically by ``VelocityField.save``; a cached file that cannot be read (corrupt, a failed checksum,
+an old format) is trained again and replaced. An interrupted training is never stored: Ctrl-C
+(or SIGTERM, where the caller turns it into KeyboardInterrupt) propagates as KeyboardInterrupt.
 """
 
 from __future__ import annotations
@@ -43,18 +45,24 @@ def cache_key(learner: str, demos: DemoSet, seed: int, options: dict[str, Any]) 
 
 def cached_field(learner: str, demos: DemoSet, seed: int = 0, options: dict[str, Any] | None = None,
                  directory: str | os.PathLike | None = None,
-                 progress: bool = True) -> tuple[VelocityField, Path, bool]:
+                 progress: bool = False, verbose: bool = True) -> tuple[VelocityField, Path, bool]:
     """The field of ``lfd.train(learner, demos, seed, **options)``, from the cache when present.
 
-    Returns (field, model file, trained now?).
+    Returns (field, model file, trained now?). ``verbose``: say on stderr when a cached file is
+    unreadable and trained again. Raises KeyboardInterrupt, storing nothing, when the training
+    was interrupted (the learner returned a partly trained field).
     """
     options = dict(options or {})
     path = Path(directory or cache_dir()) / f"{learner}-{cache_key(learner, demos, seed, options)}.pt"
     if path.is_file():
         try:
             return lfd.load(str(path)), path, False
-        except ModelError as e:
-            print(f"cache: {e}; training again", file=sys.stderr)
+        except (ModelError, OSError) as e:
+            if verbose:
+                print(f"cache: {str(e).splitlines()[0] if str(e) else type(e).__name__}; training again",
+                      file=sys.stderr)
     field = lfd.train(learner, demos, seed=seed, progress=progress, **options)
+    if field.history.get("interrupted"):
+        raise KeyboardInterrupt  # a partly trained model must never enter the cache
     field.save(path)
     return field, path, True

@@ -220,11 +220,12 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
 
     mediapy.set_ffmpeg(imageio_ffmpeg.get_ffmpeg_exe())
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=".mp4", dir=p.parent)
-    os.close(fd)
     n = 0
-    try:
+    tmp: str | None = None
+    try:  # the temporary file goes on any exception, KeyboardInterrupt (Ctrl-C, SIGTERM) included
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=".mp4", dir=p.parent)
+        os.close(fd)
         with mediapy.VideoWriter(tmp, shape=(height, width), fps=fps, crf=23) as w:
             for f in frames:
                 w.add_image(f)
@@ -238,7 +239,7 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
             raise KeyboardInterrupt from None
         raise RenderError(f"{path}: cannot write the video ({(str(e).splitlines() or [''])[0]})") from None
     finally:
-        if os.path.exists(tmp):
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
     return n
 

@@ -5,10 +5,14 @@ Every control step k (t_k = k dt):
 1. read q, qdot of the arm joints from MuJoCo;
 2. p = FK(q) with Pinocchio (``controller.measure``);
 3. v = f(x - dg) with x = A^T (p - o) / s the MEASURED tool position in task space
-   (dg: a goal shift, see ``sim.perturbations``);
+   (dg: a goal shift, see ``sim.perturbations``); a field with a phase (``lfd.learners.tracking``)
+   runs through ``PhaseLoop``, which evaluates Eq. (T3) at its phase s and then advances s by one
+   control step of Eq. (T4), so the phase waits while the measured tool is held back;
 4. qdot_ref = IK(q, twist(v)) and the actuator command (``FieldTrackingTask.apply``);
 5. the step's perturbations (push, joint-velocity noise);
 6. ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` (no dm_control wrapper);
+   during a ``Hold`` window the arm joints are then clamped at rest where the hold began (an
+   immovable obstacle);
    a NaN/unstable state or a bad control (MuJoCo warnings mjWARN_BADQPOS/QVEL/QACC/CTRL)
    raises ``SimulationError``.
 
@@ -19,7 +23,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import mujoco
 import numpy as np
@@ -44,7 +48,8 @@ class Rollout:
     wall_s : the loop's wall time; start_task, goal_task : (d,) actual start and (shifted) goal,
     task units; goal_world : (3,); push_window_s : (t0, t1) or None; push_force : (3,) N or None;
     push_body : MuJoCo body id (-1: none); ik_limit_hits : IK solves that clamped to a limit;
-    joint_limit_violations : control steps with an arm joint outside [q_min, q_max] in MuJoCo.
+    joint_limit_violations : control steps with an arm joint outside [q_min, q_max] in MuJoCo;
+    phase : (K+1,) the phase s of a ``PhaseLoop`` at each step, else None; hold_window_s : (t0, t1) or None.
     """
 
     t: np.ndarray
@@ -62,6 +67,8 @@ class Rollout:
     push_body: int
     ik_limit_hits: int
     joint_limit_violations: int
+    phase: np.ndarray | None = None
+    hold_window_s: tuple[float, float] | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -74,10 +81,49 @@ class Rollout:
         return float(np.median(self.step_time_s) * 1e6)
 
 
+@dataclass(frozen=True)
+class Hold:
+    """Hold the arm still for ``duration_s`` from ``start_s``: after every physics step in that
+    window the arm joints are reset to where they were at ``start_s``, at rest."""
+
+    start_s: float = 1.0
+    duration_s: float = 1.0
+    kind = "hold"
+
+    def describe(self) -> dict[str, Any]:
+        """The hold for the metrics JSON, like ``sim.perturbations.Perturbation.describe``."""
+        return {"kind": self.kind, "start_s": self.start_s, "duration_s": self.duration_s}
+
+
+class PhaseLoop:
+    """The control loop's side of a field with a phase (``lfd.learners.tracking``).
+
+    Each call takes the measured task-space position x, shape (d,), returns dx/dt of Eq. (T3) at
+    the current phase s, and advances s by explicit Euler of Eq. (T4) over one control period dt:
+    s <- min(1, s + dt s_dot(x, s)). ``trace`` records s before each call.
+    field : a TrackingField; dt : control period, s; start : the run's start (task units) for a
+    start-conditioned reference (Eq. (T2)).
+    """
+
+    def __init__(self, field: Any, dt: float, start: np.ndarray | None = None) -> None:
+        self.fn = field.phase_point_fn(start)
+        self.s = float(field.initial_phase())
+        self.dt = float(dt)
+        self.trace: list[float] = []
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        v, sdot = self.fn(x, self.s)
+        self.trace.append(self.s)
+        self.s = min(1.0, self.s + self.dt * sdot)
+        return v
+
+
 def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarray],
-            fps: float = FPS, progress: bool = False, desc: str = "rollout") -> Rollout:
+            fps: float = FPS, progress: bool = False, desc: str = "rollout",
+            hold: Hold | None = None) -> Rollout:
     """Reset ``env`` and run one episode with the velocity field ``field_fn`` : x (d,) -> v (d,)
-    (task units), evaluated at the measured tool position every control step."""
+    (task units), evaluated at the measured tool position every control step (a ``PhaseLoop``
+    carries its phase; the Rollout then records it). ``hold``: clamp the arm in that window."""
     task: FieldTrackingTask = env.task
     physics = env.physics
     env.reset()
@@ -102,6 +148,9 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
     prev_handler = mujoco.get_mju_user_warning()
     mujoco.set_mju_user_warning(messages.append)
     j, next_frame = 0, int(fsteps[0])
+    h0, h1 = (-1, -1) if hold is None else (int(round(hold.start_s / dt)),
+                                             int(round((hold.start_s + hold.duration_s) / dt)))
+    q_hold = None
     bar = tqdm(total=K, desc=desc, disable=not progress, unit="step", leave=False, mininterval=0.5)
     clock = time.perf_counter
     try:
@@ -119,6 +168,12 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
             x = ctl.to_task(p)
             task.apply(d, q, d.qvel[dadr], field_fn(x - shift) if shifted else field_fn(x))
             mujoco.mj_step(m, d, n_sub)
+            if h0 <= k < h1:
+                if q_hold is None:
+                    q_hold = Q[h0].copy()
+                d.qpos[qadr] = q_hold
+                d.qvel[dadr] = 0.0
+                mujoco.mj_forward(m, d)
             if warn[bad[0]] or warn[bad[1]] or warn[bad[2]] or warn[bad[3]]:
                 raise SimulationError(_divergence_message(d, k, dt, bad))
             steps[k] = clock() - t0
@@ -137,12 +192,16 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
         raise SimulationError("simulation diverged: NaN in the joint state; no output written")
     violations = int(np.count_nonzero(np.any((Q < robot.q_min) | (Q > robot.q_max), axis=1)))
     s = task.schedule
+    phase = None
+    if isinstance(field_fn, PhaseLoop):
+        phase = np.asarray(field_fn.trace + [field_fn.s], dtype=np.float64)
     return Rollout(
         t=np.arange(K + 1) * dt, ee=P, q=Q, frame_t=ftimes, frame_qpos=FQ, step_time_s=steps,
         wall_s=wall, start_task=task.start_task.copy(), goal_task=task.goal_task.copy(),
         goal_world=task.goal_world.copy(), push_window_s=s.push_window_s,
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,
-        ik_limit_hits=int(getattr(ctl.ik, "limit_hits", 0) - hits0), joint_limit_violations=violations)
+        ik_limit_hits=int(getattr(ctl.ik, "limit_hits", 0) - hits0), joint_limit_violations=violations,
+        phase=phase, hold_window_s=None if hold is None else (h0 * dt, h1 * dt))
 
 
 def _divergence_message(d: mujoco.MjData, k: int, dt: float, bad: list[int]) -> str:

@@ -1,14 +1,36 @@
 """The closed-loop task as a dm_control ``control.Environment``: a Physics and a Task kept apart.
 
 * Physics: the robot's MuJoCo scene (``robot.mjcf_xml``), ``ArmPhysics``.
-* Task (``FieldTrackingTask``): starts the arm at rest with the tool on the start point,
-  takes as action the tool velocity v, shape (d,), in TASK coordinates (user units per second,
-  the same units as the learned field's output), and turns it into actuator commands through
-  ``sim.controller.FieldController``; applies the run's perturbations (``sim.perturbations``).
-* Observations (``OrderedDict``): ``joint_positions`` (n,), ``joint_velocities`` (n,) of the arm
-  joints in Pinocchio order, ``ee_position`` (3,) the tool position in world (m, MuJoCo site).
+* Task (``FieldTrackingTask``): starts the arm at rest with the tool on the start point (or, with
+  ``start_radius`` > 0, on a point drawn uniformly in the ball of that radius around it, from
+  ``seed``, anew each episode); takes as action the tool velocity v, shape (d,), in TASK
+  coordinates (user units per second, the same units as the learned field's output), and turns it
+  into actuator commands through ``sim.controller.FieldController``; applies the run's
+  perturbations (``sim.perturbations``).
+* Action spec: ``BoundedArray`` (d,), ``ee_velocity``, bounds +-v_max = 2 m/s in task units. An
+  action of another shape, or with a NaN, raises ``SimError``; a finite action outside the bounds
+  is CLIPPED to them, component-wise (``FieldTrackingTask.clipped_actions`` counts those steps).
+* Observations (``OrderedDict``, ``OBSERVATION_KEYS``), all float64:
+
+  - ``joint_positions`` (n,), ``joint_velocities`` (n,): arm joints in Pinocchio order;
+  - ``ee_position`` (3,): the tool position in world (m, MuJoCo site), computed from the
+    observed joints (kinematics run after every step: equal to Pinocchio FK to ~1e-15 m);
+  - ``task_position`` (d,): the same point in task coordinates, x = A^T (p - o) / s;
+  - ``goal`` (d,): the goal in task coordinates (after a ``GoalShift``);
+  - ``joint_limit`` (n,): 1.0 where the joint is outside [q_min, q_max], else 0.0;
+  - ``field_velocity`` (d,), only with a ``field``: the field's velocity at ``task_position``
+    (goal-shifted like ``sim.execute``), i.e. the action that ``sim.execute`` would take.
+
 * Reward: 1 within 5 mm of the (shifted) goal, falling off as a Gaussian over 5 cm
   (``dm_control.utils.rewards.tolerance``).
+* Restorable state: ``physics.get_state()`` holds the MuJoCo state only. The computed-torque
+  controller also remembers the previous joint-velocity reference, and the task its control-step
+  index (push and noise schedule) and the applied push force; restoring the physics alone replays
+  differently (Panda, computed torque: 0.63 mm off within 0.9 s, 6.5 mm with a push in that window). ``FieldTrackingTask.get_state`` /
+  ``set_state`` save and restore all of it (MuJoCo's full ``mjSTATE_INTEGRATION`` state plus the
+  controller and schedule), so a replay is exact with the ``dls`` IK (stateless). Not included:
+  the Environment's own step counter (its time limit counts from its last reset), the random
+  start generator, and any state of the ``pink`` IK's QP solver.
 
 The fast loop (``sim.rollout``) uses these same Physics and Task objects but calls
 ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly: ``Environment.step``
@@ -19,7 +41,7 @@ cost per control step (scripts/bench_loop.py).
 from __future__ import annotations
 
 import collections
-from typing import Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import mujoco
 import numpy as np
@@ -28,13 +50,20 @@ from dm_control.rl import control
 from dm_control.utils import rewards
 from dm_env import specs
 
-from robots import Kinematics, RobotModel, solve_position_ik
+from robots import Kinematics, RobotModel, load_robot, solve_position_ik
 from sim.controller import FieldController, Gains
 from sim.errors import PlacementError, SimError
 from sim.perturbations import Perturbation, Schedule, compile_schedule
 from sim.placement import IK_TOLERANCE_M, Placement
 
-OBSERVATION_KEYS: tuple[str, ...] = ("joint_positions", "joint_velocities", "ee_position")
+if TYPE_CHECKING:
+    from lfd.demos import DemoSet
+    from lfd.field import VelocityField
+
+OBSERVATION_KEYS: tuple[str, ...] = ("joint_positions", "joint_velocities", "ee_position", "task_position",
+                                     "goal", "joint_limit")   # plus "field_velocity" with a field
+V_MAX_M_S = 2.0          # action bound, m/s of tool speed: far above any demo speed
+START_DRAWS = 50         # random starts tried per episode before giving up (out of reach)
 GOAL_TOLERANCE_M = 0.005
 
 
@@ -75,15 +104,29 @@ class ArmPhysics(dm_mujoco.Physics):
 class FieldTrackingTask(control.Task):
     """Drive the tool with a task-space velocity action; see the module docstring.
 
-    start, goal : arrays, shape (d,) -- demo start and field goal, task coordinates, before
-    perturbation offsets. ``q_start``, ``start_task`` and ``goal_task`` hold the actual values.
+    Parameters
+    ----------
+    robot, placement : the arm and the map task space -> world.
+    start, goal : array, shape (d,)
+        Demo start and field goal, task coordinates, before perturbation offsets. ``q_start``,
+        ``start_task`` (this episode's start) and ``goal_task`` hold the actual values.
+    control_dt, duration_s : float
+        Control step and episode length, s.
+    start_radius : float
+        > 0: each episode starts at a point drawn uniformly in the ball of this radius (task
+        units) around the start, from ``np.random.default_rng(seed)``; points out of the arm's
+        reach are redrawn (``START_DRAWS`` tries, then ``PlacementError``).
+    field : callable x (d,) -> v (d,), optional
+        A velocity field in task units; adds the ``field_velocity`` observation.
+    Others as ``sim.controller.FieldController``.
     """
 
     def __init__(self, robot: RobotModel, placement: Placement, start: np.ndarray, goal: np.ndarray,
                  control_dt: float, duration_s: float, ik: str = "dls", actuation: str | None = None,
                  perturbations: Sequence[Perturbation] = (), rotation_ref: np.ndarray | None = None,
                  gains: Gains = Gains(), feedforward: bool = True,
-                 mj_model: mujoco.MjModel | None = None) -> None:
+                 mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
+                 field: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
         model = robot.mj_model if mj_model is None else mj_model
         self.robot, self.placement, self.control_dt = robot, placement, float(control_dt)
         self.n_steps = int(round(duration_s / control_dt))
@@ -91,17 +134,24 @@ class FieldTrackingTask(control.Task):
         self.schedule: Schedule = compile_schedule(
             perturbations, placement, bodies, tool_body(robot, model), robot.n, self.n_steps, control_dt)
         self.perturbations = tuple(perturbations)
-        self.start_task = np.asarray(start, dtype=np.float64) + self.schedule.start_offset_task
+        self._start_nominal = np.asarray(start, dtype=np.float64) + self.schedule.start_offset_task
+        self.start_task = self._start_nominal.copy()
         self.goal_task = np.asarray(goal, dtype=np.float64) + self.schedule.goal_offset_task
         self.goal_world = placement.to_world(self.goal_task)
+        if not (np.isfinite(start_radius) and start_radius >= 0):
+            raise SimError(f"start radius must be >= 0, got {start_radius}")
+        self.start_radius = float(start_radius)
+        self._rng = np.random.default_rng(seed)
+        self.field = field
+        self._shift = self.schedule.goal_offset_task.copy()
         if rotation_ref is None and not robot.planar:
             kin = Kinematics(robot)
             kin.update(robot.q_home)
             rotation_ref = kin.ee_rotation().copy()
         self.rotation_ref = rotation_ref
-        p0 = placement.to_world(self.start_task)
-        q0, err = solve_position_ik(robot, p0, rotation_ref, q0=robot.q_home)
+        q0, err = self._start_joints(self.start_task)
         if not err <= IK_TOLERANCE_M:
+            p0 = placement.to_world(self.start_task)
             raise PlacementError(f"start point {np.round(p0, 3).tolist()} m is out of reach of "
                                  f"'{robot.name}' (missed by {err * 1e3:.1f} mm)")
         self.q_start = q0
@@ -109,13 +159,34 @@ class FieldTrackingTask(control.Task):
                                           rotation_ref=rotation_ref, gains=gains, feedforward=feedforward,
                                           mj_model=model)
         self.step_index = 0
+        self.clipped_actions = 0
         self._qadr, self._dadr = robot.mj_qpos_adr, robot.mj_dof_adr
         self._acts = robot.mj_actuator_ids
-        v_max = 2.0 / placement.scale  # 2 m/s in task units: far above any demo speed
+        v_max = V_MAX_M_S / placement.scale
         self._action_spec = specs.BoundedArray((placement.dim,), np.float64, -v_max, v_max, name="ee_velocity")
+
+    def _start_joints(self, x: np.ndarray) -> tuple[np.ndarray, float]:
+        """Joints, shape (n,), with the tool on task point x, shape (d,), and the IK miss (m)."""
+        return solve_position_ik(self.robot, self.placement.to_world(x), self.rotation_ref, q0=self.robot.q_home)
+
+    def _draw_start(self) -> None:
+        """A start uniform in the ball of ``start_radius`` around the nominal start (module docstring)."""
+        d = self.placement.dim
+        for _ in range(START_DRAWS):
+            u = self._rng.normal(size=d)
+            r = self.start_radius * self._rng.uniform() ** (1.0 / d)
+            x = self._start_nominal + r * u / max(float(np.linalg.norm(u)), 1e-300)
+            q, err = self._start_joints(x)
+            if err <= IK_TOLERANCE_M:
+                self.start_task, self.q_start = x, q
+                return
+        raise PlacementError(f"no reachable start found in {START_DRAWS} draws within {self.start_radius:g} "
+                             f"task units of {np.round(self._start_nominal, 3).tolist()}")
 
     # ---------------------------------------------------------------- dm_control Task API
     def initialize_episode(self, physics: ArmPhysics) -> None:
+        if self.start_radius > 0:
+            self._draw_start()
         data = physics.data.ptr
         data.qpos[self._qadr] = self.q_start
         data.qvel[:] = 0.0
@@ -123,32 +194,93 @@ class FieldTrackingTask(control.Task):
         data.ctrl[self._acts] = self.q_start if self.controller.actuation == "position" else 0.0
         self.controller.reset(self.q_start)
         self.step_index = 0
+        self.clipped_actions = 0
 
     def before_step(self, action: np.ndarray, physics: ArmPhysics) -> None:
+        v = self.check_action(action)
         data = physics.data.ptr
         q = data.qpos[self._qadr]
         self.controller.measure(q)
-        self.apply(data, q, data.qvel[self._dadr], np.asarray(action, dtype=np.float64))
+        self.apply(data, q, data.qvel[self._dadr], v)
+
+    def after_step(self, physics: ArmPhysics) -> None:
+        """Position kinematics at the new state, so ``ee_position`` (site_xpos) describes the
+        observed joints, not those before the step (``mj_step`` integrates after computing it)."""
+        mujoco.mj_kinematics(physics.model.ptr, physics.data.ptr)
+
+    def check_action(self, action: np.ndarray) -> np.ndarray:
+        """The action as float64, shape (d,), clipped to the spec's bounds; ``SimError`` for a
+        wrong shape or a non-finite value (module docstring)."""
+        spec = self._action_spec
+        try:
+            v = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SimError(f"action must be a numeric array of shape {spec.shape} ({spec.name}, "
+                           f"task units/s), got {type(action).__name__}") from None
+        if v.shape != spec.shape:
+            raise SimError(f"action must have shape {spec.shape} ({spec.name}, task units/s), got {v.shape}")
+        if not np.isfinite(v).all():
+            raise SimError(f"action must be finite, got {v.tolist()}")
+        if np.any(v < spec.minimum) or np.any(v > spec.maximum):
+            self.clipped_actions += 1
+            v = np.clip(v, spec.minimum, spec.maximum)
+        return v
 
     def action_spec(self, physics: ArmPhysics) -> specs.BoundedArray:
         return self._action_spec
 
     def get_observation(self, physics: ArmPhysics) -> collections.OrderedDict:
-        return collections.OrderedDict(
-            joint_positions=physics.joint_positions(),
-            joint_velocities=physics.joint_velocities(),
-            ee_position=physics.ee_position())
+        q = physics.joint_positions()
+        p = physics.ee_position()
+        x = self.placement.to_task(p)
+        obs = collections.OrderedDict(
+            joint_positions=q, joint_velocities=physics.joint_velocities(), ee_position=p,
+            task_position=x, goal=self.goal_task.copy(),
+            joint_limit=((q < self.robot.q_min) | (q > self.robot.q_max)).astype(np.float64))
+        if self.field is not None:
+            obs["field_velocity"] = np.array(self.field(x - self._shift), dtype=np.float64)
+        return obs
 
     def observation_spec(self, physics: ArmPhysics) -> collections.OrderedDict:
-        n = self.robot.n
-        return collections.OrderedDict(
+        n, d = self.robot.n, self.placement.dim
+        out = collections.OrderedDict(
             joint_positions=specs.Array((n,), np.float64, "joint_positions"),
             joint_velocities=specs.Array((n,), np.float64, "joint_velocities"),
-            ee_position=specs.Array((3,), np.float64, "ee_position"))
+            ee_position=specs.Array((3,), np.float64, "ee_position"),
+            task_position=specs.Array((d,), np.float64, "task_position"),
+            goal=specs.Array((d,), np.float64, "goal"),
+            joint_limit=specs.BoundedArray((n,), np.float64, 0.0, 1.0, "joint_limit"))
+        if self.field is not None:
+            out["field_velocity"] = specs.Array((d,), np.float64, "field_velocity")
+        return out
 
     def get_reward(self, physics: ArmPhysics) -> float:
         dist = float(np.linalg.norm(physics.ee_position() - self.goal_world))
         return float(rewards.tolerance(dist, bounds=(0.0, GOAL_TOLERANCE_M), margin=0.05))
+
+    # ---------------------------------------------------------------- restorable state
+    def get_state(self, physics: ArmPhysics) -> np.ndarray:
+        """Everything a replay depends on, shape (S + n + 1,): MuJoCo's ``mjSTATE_INTEGRATION``
+        state (S values: time, qpos, qvel, act, warm start, ctrl, applied forces, ...), the
+        controller's previous joint-velocity reference (n,) and the control-step index."""
+        m, d = physics.model.ptr, physics.data.ptr
+        sim_state = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_INTEGRATION))
+        mujoco.mj_getState(m, d, sim_state, mujoco.mjtState.mjSTATE_INTEGRATION)
+        # the controller's only memory: qdot_ref of the last step (computed torque's qddot_ref)
+        return np.concatenate([sim_state, self.controller._qdot_prev, [float(self.step_index)]])
+
+    def set_state(self, physics: ArmPhysics, state: np.ndarray) -> None:
+        """Restore a ``get_state`` vector; raises ``SimError`` if its size does not match."""
+        m, d = physics.model.ptr, physics.data.ptr
+        size = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_INTEGRATION)
+        state = np.asarray(state, dtype=np.float64)
+        n = self.robot.n
+        if state.shape != (size + n + 1,):
+            raise SimError(f"state must have shape ({size + n + 1},) (from get_state), got {state.shape}")
+        mujoco.mj_setState(m, d, state[:size], mujoco.mjtState.mjSTATE_INTEGRATION)
+        mujoco.mj_forward(m, d)
+        self.controller._qdot_prev = state[size:size + n].copy()
+        self.step_index = int(round(state[-1]))
 
     # ---------------------------------------------------------------- shared with the fast loop
     def apply(self, data: mujoco.MjData, q: np.ndarray, qdot: np.ndarray, v: np.ndarray) -> None:
@@ -168,19 +300,73 @@ class FieldTrackingTask(control.Task):
         self.step_index = k + 1
 
 
-def make_environment(robot: RobotModel, placement: Placement, start: np.ndarray, goal: np.ndarray, *,
-                     control_hz: float = 500.0, duration_s: float = 6.0, ik: str = "dls",
+def make_environment(robot: str | RobotModel, placement: Placement | None = None, start: np.ndarray | None = None,
+                     goal: np.ndarray | None = None, *, demos: str | DemoSet | None = None,
+                     learner_field: VelocityField | None = None, seed: int | None = None,
+                     start_radius: float = 0.0, demo_index: int = 0, control_hz: float = 500.0,
+                     duration_s: float | None = None, settle_s: float = 1.5, ik: str = "dls",
                      actuation: str | None = None, perturbations: Sequence[Perturbation] = (),
                      rotation_ref: np.ndarray | None = None, gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None) -> control.Environment:
-    """A dm_control Environment of ``robot`` following task velocities; ``actuation`` (position or
-    torque) must be the one the robot was loaded with (None: whichever that was).
+    """A dm_control Environment of ``robot`` following task velocities (see the module docstring).
 
-    The control step is 1 / control_hz s, an integer number of MuJoCo steps; an episode lasts
-    ``duration_s``. The Task sets the actuators itself, so the Environment has
-    ``legacy_step=False`` (a plain ``mj_step`` per physics step). Pass ``physics`` (built by
-    ``ArmPhysics.from_robot(robot)``) to reuse one compiled model across environments.
+    One call from names::
+
+        env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
+
+    Parameters
+    ----------
+    robot : str or RobotModel
+        A built-in name (``planar``, ``panda``; loaded with ``actuation``, default ``torque``) or
+        a loaded robot; ``actuation`` must then be the one it was loaded with (None: whichever).
+    placement, start, goal : optional
+        Task space -> robot, and the start and goal, shape (d,), task units. Each defaults from
+        ``demos``: ``Placement.auto`` (checked reachable), demo ``demo_index``'s first sample, and
+        ``learner_field.goal`` (else the demos' goal). Without ``demos``, ``placement`` and
+        ``start`` are required, and ``goal`` unless a ``learner_field`` gives it.
+    demos : str or DemoSet, optional
+        A demo SPEC (``spiral``, ``lasa:Angle``, a file; see ``lfd.load_demos``) or a DemoSet.
+    learner_field : VelocityField, optional
+        Adds the ``field_velocity`` observation (the action ``sim.execute`` would take) and
+        gives the goal.
+    seed, start_radius : random initial states: with ``start_radius`` > 0 (task units) each
+        episode starts uniformly in that ball around the start, drawn from ``seed``.
+    duration_s : float, optional
+        Episode length, s; default: the demo's duration plus ``settle_s`` with ``demos``, else 6.
+    control_hz : the control rate, an integer divisor of the physics rate; the Environment has
+        ``legacy_step=False`` (a plain ``mj_step`` per physics step).
+    physics : an ``ArmPhysics.from_robot(robot)`` to reuse one compiled model across environments.
+    Others as ``FieldTrackingTask`` and ``sim.controller.FieldController``.
     """
+    if isinstance(robot, str):
+        robot = load_robot(robot, actuation=actuation or "torque")
+    demo_set = None
+    if demos is not None:
+        from lfd.demos import load_demos
+
+        demo_set = load_demos(demos) if isinstance(demos, str) else demos
+        if not 0 <= demo_index < demo_set.n_demos:
+            raise SimError(f"demo index {demo_index} out of range: {demo_set.name} has {demo_set.n_demos} demos")
+        if rotation_ref is None and not robot.planar:
+            kin = Kinematics(robot)
+            kin.update(robot.q_home)
+            rotation_ref = kin.ee_rotation().copy()
+        if placement is None:
+            placement = Placement.auto(robot, demo_set.x)
+            placement.check_reachable(robot, demo_set.x, rotation=rotation_ref)
+        if start is None:
+            start = demo_set.x[demo_index, 0]
+        if goal is None and learner_field is None:
+            goal = demo_set.goal
+        if duration_s is None:
+            duration_s = float(demo_set.t[demo_index, -1] - demo_set.t[demo_index, 0]) + settle_s
+    if goal is None and learner_field is not None:
+        goal = learner_field.goal
+    if placement is None or start is None or goal is None:
+        raise SimError("make_environment needs demos, or a placement, a start and a goal (or a learner_field)")
+    if learner_field is not None and learner_field.dim != placement.dim:
+        raise SimError(f"the field is {learner_field.dim}-D but the placement is {placement.dim}-D")
+    duration_s = 6.0 if duration_s is None else duration_s
     physics = ArmPhysics.from_robot(robot) if physics is None else physics
     timestep = physics.model.opt.timestep
     if not control_hz > 0:
@@ -191,6 +377,8 @@ def make_environment(robot: RobotModel, placement: Placement, start: np.ndarray,
     control_dt = round(n_sub) * timestep
     task = FieldTrackingTask(robot, placement, start, goal, control_dt, duration_s, ik=ik,
                              actuation=actuation, perturbations=perturbations, rotation_ref=rotation_ref,
-                             gains=gains, feedforward=feedforward, mj_model=physics.model.ptr)
+                             gains=gains, feedforward=feedforward, mj_model=physics.model.ptr,
+                             start_radius=start_radius, seed=seed,
+                             field=None if learner_field is None else learner_field.point_fn())
     return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
                                legacy_step=False)

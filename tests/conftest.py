@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("MKL_CBWR", "COMPATIBLE")  # before torch loads MKL, as ``import lfd`` does
+
 from typing import Callable, Iterator
 
 import numpy as np

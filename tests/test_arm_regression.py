@@ -29,11 +29,10 @@ CHECKED = ("tracking_rmse_m", "final_goal_error_m", "imitation_rmse_m")
 TRAINING = {
     "node": {"hidden": (32, 32), "iters": 150, "lr": 1e-2, "lr_final": 1e-4, "seg": 10, "seg_start": 2,
              "batch": 128, "samples": 100},
-    "contraction": {"layers": 2, "features": 16, "iterations": 30, "rate": 0.5, "batch": 1000,
+    "contraction": {"layers": 2, "hidden": 16, "iterations": 30, "rate": 0.5, "batch": 1000,
                     "traj_weight": 1.0, "traj_points": 25},
 }
 UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"
-_measured: dict[str, dict[str, float]] = {}
 
 
 @pytest.fixture(scope="module")
@@ -56,14 +55,29 @@ def golden() -> dict:
     return json.loads(GOLDEN.read_text()) if GOLDEN.is_file() else {"runs": {}}
 
 
+def update_golden(key: str, values: dict[str, float]) -> None:
+    """Write one run's entry into the golden file, keeping the others: each test updates its own
+    entry, so regenerating does not depend on which tests ran or in what order."""
+    data = golden()
+    runs = {**data.get("runs", {}), key: values}
+    GOLDEN.parent.mkdir(exist_ok=True)
+    GOLDEN.write_text(json.dumps({
+        "about": "tracking metrics (m) of short closed-loop runs, see tests/test_arm_regression.py",
+        "tolerance": {"relative": REL, "absolute_m": ABS_M},
+        "training": {k: {o: list(v) if isinstance(v, tuple) else v for o, v in opts.items()}
+                     for k, opts in TRAINING.items()},
+        "runs": dict(sorted(runs.items())),
+    }, indent=2) + "\n")
+
+
 @pytest.mark.parametrize("robot", ["planar", "panda"])
 @pytest.mark.parametrize("learner", ["node", "contraction"])
 def test_tracking_not_worse_than_golden(robot, learner, fields, experiments):
     m = experiments[robot].run(fields[learner], "none").metrics
     key = f"{robot}/{learner}"
-    _measured[key] = {k: round(float(m[k]), 6) for k in CHECKED}
     assert m["joint_limit_violations"] == 0
     if UPDATE:
+        update_golden(key, {k: round(float(m[k]), 6) for k in CHECKED})
         return
     ref = golden()["runs"].get(key)
     assert ref is not None, f"no golden entry {key}; run with UPDATE_GOLDEN=1"
@@ -82,18 +96,3 @@ def test_contraction_recovers_from_push(robot, max_recovery_s, fields, experimen
         assert m["recovery_time_s"] <= max_recovery_s
     assert m["joint_limit_violations"] == 0
     assert m["final_goal_error_m"] < 0.005
-
-
-def test_zz_write_golden():
-    """With UPDATE_GOLDEN=1: write what the tests above measured (runs last by name)."""
-    if not UPDATE:
-        pytest.skip("set UPDATE_GOLDEN=1 to rewrite tests/golden/tracking.json")
-    assert len(_measured) == 4
-    GOLDEN.parent.mkdir(exist_ok=True)
-    GOLDEN.write_text(json.dumps({
-        "about": "tracking metrics (m) of short closed-loop runs, see tests/test_arm_regression.py",
-        "tolerance": {"relative": REL, "absolute_m": ABS_M},
-        "training": {k: {o: list(v) if isinstance(v, tuple) else v for o, v in opts.items()}
-                     for k, opts in TRAINING.items()},
-        "runs": dict(sorted(_measured.items())),
-    }, indent=2) + "\n")

@@ -23,7 +23,7 @@ from lfd.demos import lasa
 from lfd.errors import ConfigError
 from lfd.metrics import rmse
 
-ANGLE_RMSE_CONTRACTION_MAX = 5.0  # mm, contraction at --quick settings on Angle (measured 4.12)
+ANGLE_RMSE_CONTRACTION_MAX = 7.0  # mm, contraction at --quick settings on Angle (measured 5.92 at KAPPA = 100)
 ANGLE_RMSE_DMP_MAX = 3.5          # mm, the DMP fitted to Angle's mean demo (measured 3.29)
 QUICK_CELLS = [f"{learner}__{shape}__seed0" for learner in ("contraction", "dmp") for shape in P.QUICK_SHAPES]
 
@@ -150,7 +150,8 @@ def test_contraction_converges_from_every_start_and_fits_angle(quick: dict[str, 
     cells = {c["shape"]: c for c in quick["json"]["results"] if c["learner"] == "contraction"}
     for shape, c in cells.items():
         assert c["convergence"]["rate"] == 1.0, (shape, c["convergence"])
-        assert c["integrators"] == {"reproduce": "dopri5", "rollouts": "dopri5"}
+        assert c["integrators"] == {"reproduce": "dopri5", "rollouts": "dopri5", "grid": "dopri5"}
+        assert c["convergence"]["spurious_grid"] == 0.0 and c["convergence"]["n_grid"] == 35 * 35
     assert cells["Angle"]["train"]["rmse"] < ANGLE_RMSE_CONTRACTION_MAX
     dmp = {c["shape"]: c for c in quick["json"]["results"] if c["learner"] == "dmp"}
     assert all(c["convergence"]["rate"] == 1.0 for c in dmp.values())

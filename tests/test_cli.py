@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import io
 import json
 import math
+import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -209,3 +212,47 @@ def test_subprocess_exit_code(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.strip().splitlines() == [f"lfd: error: {tmp_path / 'absent.pt'}: no such model file"]
+
+
+def test_broken_pipe_ends_quietly(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """``lfd eval ... | head -1``: the reader leaves, the command ends with no message, exit 141."""
+
+    class ClosedPipe(io.TextIOBase):
+        def write(self, text: str) -> int:
+            raise BrokenPipeError(32, "Broken pipe")
+
+    def prints(args: argparse.Namespace) -> int:
+        print("a table")
+        return 0
+
+    monkeypatch.setattr(lfd.commands.eval, "run", prints)
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert main(["eval", "m.pt", "--demos", "spiral"]) == 141
+    assert capsys.readouterr().err == ""
+
+
+def test_ctrl_c_during_startup_imports_is_no_traceback(monkeypatch: pytest.MonkeyPatch,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    import builtins
+
+    real_import = builtins.__import__
+
+    def ctrl_c_in_import(name: str, *args, **kwargs):  # type: ignore[no-untyped-def]
+        if name == "torch":  # Ctrl-C lands while torch is being imported
+            os.kill(os.getpid(), signal.SIGINT)
+        return real_import(name, *args, **kwargs)  # ... and the import itself goes on unharmed
+
+    monkeypatch.setattr(builtins, "__import__", ctrl_c_in_import)
+    code = main(["eval", "m.pt", "--demos", "spiral"])
+    monkeypatch.undo()
+    assert code == 130 and capsys.readouterr().err == "lfd: interrupted\n"
+
+    def raises_in_import(name: str, *args, **kwargs):  # type: ignore[no-untyped-def]
+        if name == "torch":  # an import that was interrupted before main could defer it
+            raise KeyboardInterrupt
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", raises_in_import)
+    code = main(["eval", "m.pt", "--demos", "spiral"])
+    monkeypatch.undo()
+    assert code == 130 and capsys.readouterr().err == "lfd: interrupted\n"

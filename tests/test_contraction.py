@@ -1,10 +1,15 @@
-"""The contraction learner: its flow, its field, training, and its convergence guarantees.
+"""The contraction learner: its flow and analytic bounds, its field, training, and its guarantees.
 
-Two spiral models are trained once per module (weak rate 0.2/s and strong rate 3/s, default
-options otherwise). The numbers asserted were measured on the 2-core CI machine; see the comments.
+Two spiral models are trained once per module (weak rate 0.5/s and strong rate 1/s at the default
+condition bound KAPPA = 100; the strong rate is the largest the spiral allows within it, see
+``feasible_rate``). The bounds claimed for all x are checked far from the data, along the axes, the
+diagonals and the coordinate strips, and for randomly initialised flows at several weight scales.
 """
 
 from __future__ import annotations
+
+import math
+import warnings
 
 import numpy as np
 import pytest
@@ -12,11 +17,11 @@ import torch
 
 import lfd
 from lfd.errors import ConfigError
-from lfd.learners.contraction import ContractionField, ContractionModule, distortion
-from lfd.learners.flows import CouplingFlow, coupling_flow_numpy
+from lfd.learners.contraction import (ContractionField, ContractionModule, RateFeasibilityWarning,
+                                      feasible_rate, lipschitz_bound)
+from lfd.learners.flows import BoundedFlow, bounded_flow_numpy
 
-WEAK, STRONG = 0.2, 3.0
-
+WEAK, STRONG = 0.5, 1.0
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -31,78 +36,128 @@ def strong(spiral: lfd.DemoSet) -> ContractionField:
     return lfd.train("contraction", spiral, seed=0, progress=False, rate=STRONG)
 
 
-def random_flow(dim: int, seed: int, window: float) -> CouplingFlow:
+def random_flow(dim: int, seed: int, scale: float, max_condition: float = 100.0) -> BoundedFlow:
+    """A flow with random raw parameters of size ``scale`` (the budget still bounds it)."""
     torch.manual_seed(seed)
-    flow = CouplingFlow(dim, 5, 16, 0.5, 2.0, window).double()
+    flow = BoundedFlow(dim, 3, 16, 1.5, max_condition).double()
     with torch.no_grad():
-        flow.weight.normal_(std=1.0)
-        flow.bias.normal_(std=0.3)
+        flow.theta.normal_(std=scale)
+        flow.w2.normal_(std=scale)
+        flow.w1.mul_(scale)
+        flow.split.normal_(std=1.0)
+        flow.center.normal_(std=0.5)
     return flow
 
 
-def neighbours(field: ContractionField, x0: np.ndarray, t: np.ndarray, eps: float = 1e-5
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Trajectories from x0 and from x0 + eps u (Eq. (C4), exact): returns x(t), shape (T, d), and |dx(t)|, (T,)."""
-    pair = np.stack([x0, x0 + eps * np.array([1.0, 0.5]) / np.hypot(1.0, 0.5)])
-    xs = field.exact_rollout(pair, t)
-    return xs[0], np.linalg.norm(xs[0] - xs[1], axis=1)
+def far_points(dim: int) -> torch.Tensor:
+    """Points along the axes, the diagonals and the strips (one coordinate small, another large),
+    at radii from 0.1 to 1e6: where a windowed flow is most likely to break its bounds."""
+    dirs = [np.eye(dim)[i] * s for i in range(dim) for s in (1, -1)]
+    dirs += [np.array(v, dtype=float) / np.linalg.norm(v) for v in
+             ([1, 1], [1, -1], [-1, 1], [-1, -1]) if dim == 2]
+    dirs += [np.array(v, dtype=float) / np.linalg.norm(v) for v in
+             ([1, 1, 1], [1, -1, 1], [-1, -1, 1], [1, 1, -1]) if dim == 3]
+    pts = [r * u for r in np.geomspace(0.1, 1e6, 29) for u in dirs]
+    for r in np.geomspace(1.0, 1e6, 13):       # strips: x_0 in [-0.3, 0.3], another coordinate large
+        for small in (-0.3, 0.0, 0.3):
+            for k in range(1, dim):
+                p = np.zeros(dim)
+                p[0], p[k] = small, r
+                pts += [p, -p]
+    rng = np.random.default_rng(dim)
+    pts += list(rng.normal(size=(200, dim)) * 1.5)
+    return torch.as_tensor(np.array(pts))
 
 
-def fitted_rate(field: ContractionField, x0: np.ndarray, t: np.ndarray) -> float:
-    """Exponential rate r of |dx(t)| ~ c e^{-r t} between neighbouring trajectories (least squares on log)."""
-    return float(-np.polyfit(t, np.log(neighbours(field, x0, t)[1]), 1)[0])
+# ---------------------------------------------------------------- the flow phi and its bounds
 
-
-# ---------------------------------------------------------------- the flow phi
-
-@pytest.mark.parametrize("window", [0.0, 1.2])
 @pytest.mark.parametrize("dim", [2, 3])
-def test_flow_jacobian_inverse_and_numpy_path_are_exact(dim: int, window: float) -> None:
-    flow = random_flow(dim, seed=dim, window=window)
+def test_flow_jacobian_inverse_and_numpy_path_agree(dim: int) -> None:
+    flow = random_flow(dim, seed=dim, scale=1.0)
     x = torch.randn(7, dim, dtype=torch.float64)
     y, jac = (t.detach() for t in flow.forward_with_jacobian(x))
     auto = torch.stack([torch.autograd.functional.jacobian(lambda p: flow(p[None])[0], xi) for xi in x])
     scale = float(jac.abs().max())
-    assert float((jac - auto).abs().max()) <= 1e-12 * scale
-    assert float((flow.inverse(y).detach() - x).abs().max()) <= 1e-12 * float(y.abs().max())
-    assert float((flow(x).detach() - y).abs().max()) == 0.0
+    assert float((jac - auto).abs().max()) <= 1e-10 * scale
+    assert float((flow.inverse(y) - x).abs().max()) <= 1e-10 * (1 + float(y.abs().max()))
     params = flow.numpy_params()
     for xi, yi, ji in zip(x.numpy(), y.numpy(), jac.numpy()):
-        yn, jn = coupling_flow_numpy(params, xi)
-        assert np.allclose(yn, yi, rtol=1e-13, atol=1e-13)
-        assert np.allclose(jn, ji, rtol=1e-12, atol=1e-12 * scale)
+        yn, jn = bounded_flow_numpy(params, xi)
+        assert np.allclose(yn, yi, rtol=1e-12, atol=1e-12)
+        assert np.allclose(jn, ji, rtol=1e-10, atol=1e-10 * scale)
 
 
-def test_window_makes_layers_affine_far_from_the_data() -> None:
-    """With a window, J_phi far out along every axis is the product of the layers' constant scales."""
-    flow, bare = random_flow(2, seed=5, window=1.0), random_flow(2, seed=5, window=0.0)
-    far = torch.tensor([[40.0, 30.0], [-35.0, 45.0]], dtype=torch.float64)
-    _, jac = (t.detach() for t in flow.forward_with_jacobian(far))
-    _, jac_bare = (t.detach() for t in bare.forward_with_jacobian(far))
-    assert float((jac - torch.diag_embed(torch.diagonal(jac, dim1=1, dim2=2))).abs().max()) < 1e-9
-    assert float(jac_bare.abs().max()) > 10.0          # the periodic features alone keep shearing
-
-
-def test_fresh_flow_is_identity_and_distortion_is_zero_only_for_conformal() -> None:
+def test_fresh_flow_is_the_identity() -> None:
     torch.manual_seed(0)
-    flow = CouplingFlow(2, 4, 8, 0.5, 2.0).double()
+    flow = BoundedFlow(2, 3, 8, 1.5, 100.0).double()
     x = torch.randn(5, 2, dtype=torch.float64)
-    y, jac = flow.forward_with_jacobian(x)
-    assert torch.equal(y, x) and torch.equal(jac, torch.eye(2, dtype=torch.float64).expand(5, 2, 2))
-    rot = torch.tensor([[[0.0, -2.0], [2.0, 0.0]]], dtype=torch.float64)
-    shear = torch.tensor([[[1.0, 1.0], [0.0, 1.0]]], dtype=torch.float64)
-    assert float(distortion(rot)) == pytest.approx(0.0, abs=1e-15)
-    assert float(distortion(shear)) == pytest.approx(1.0)        # |J|_F^2 / det - 2 = 3 - 2
+    with torch.no_grad():
+        y, jac = flow.forward_with_jacobian(x)
+    assert float((y - x).abs().max()) < 1e-12
+    assert float((jac - torch.eye(2, dtype=torch.float64)).abs().max()) < 1e-12
+
+
+@pytest.mark.parametrize("scale", [0.1, 1.0, 3.0])
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("kappa", [4.0, 100.0, 1e4])
+def test_analytic_singular_value_bounds_hold_everywhere(dim: int, scale: float, kappa: float) -> None:
+    """s_lo <= sigma(J_phi(x)) <= s_hi at points out to |x| = 1e6, for random weights of any size,
+    and (s_hi / s_lo)^2 <= KAPPA by construction (Eq. (F4))."""
+    flow = random_flow(dim, seed=int(10 * scale) + dim, scale=scale, max_condition=kappa)
+    s_lo, s_hi = flow.singular_value_bounds()
+    assert (s_hi / s_lo) ** 2 <= kappa * (1 + 1e-9)
+    with torch.no_grad():
+        _, jac = flow.forward_with_jacobian(far_points(dim))
+    sv = torch.linalg.svdvals(jac)
+    assert torch.isfinite(sv).all()
+    assert float(sv.max()) <= s_hi * (1 + 1e-9)
+    assert float(sv.min()) >= s_lo * (1 - 1e-9)
+    # the bound is not vacuous: the random flow uses a good part of it somewhere
+    assert float(sv.max() / sv.min()) > 1.0 + 0.05 * min(scale, 1.0)
+
+
+@pytest.mark.parametrize("scale", [0.1, 1.0, 3.0])
+def test_field_lipschitz_bound_holds_far_away(spiral: lfd.DemoSet, scale: float) -> None:
+    """|J_f(x)| <= Lip bound (Eq. (C6)) at the same far points, for randomly initialised models."""
+    torch.manual_seed(int(scale * 10))
+    field = lfd.train("contraction", spiral, seed=int(scale * 10), progress=False, iterations=0)
+    module = field.module
+    with torch.no_grad():
+        module.flow.theta.normal_(std=scale)
+        module.flow.w2.normal_(std=scale)
+        module.flow.center.normal_(std=0.5)
+    bound = lipschitz_bound(module)
+    x = far_points(2)
+    jf = torch.func.vmap(torch.func.jacrev(lambda p: module(p[None])[0]))(x)
+    norms = torch.linalg.matrix_norm(jf, ord=2)
+    assert torch.isfinite(norms).all()
+    assert float(norms.max()) <= bound
+    # far away the field is the latent linear map: |J_f| -> |A|
+    a_norm = float(torch.linalg.matrix_norm(module.latent_matrix(), ord=2))
+    assert float(norms[-400:-200].max()) <= bound and a_norm <= bound
 
 
 # ---------------------------------------------------------------- options
 
 @pytest.mark.parametrize("options", [{"rate": 0.0}, {"rate": -1.0}, {"rate": float("nan")}, {"rate": True},
-                                     {"layers": 0}, {"features": 2.5}, {"distortion_weight": -1.0},
-                                     {"damping": "yes"}, {"no_such_option": 1}])
+                                     {"rate": 1e300}, {"layers": 0}, {"hidden": 2.5}, {"max_condition": 1.0},
+                                     {"max_condition": float("nan")}, {"damping": "yes"}, {"no_such_option": 1}])
 def test_bad_options_are_config_errors(spiral: lfd.DemoSet, options: dict) -> None:
     with pytest.raises(ConfigError):
         lfd.train("contraction", spiral, progress=False, **options)
+
+
+def test_an_infeasible_rate_warns_and_names_the_largest_feasible_one(spiral: lfd.DemoSet) -> None:
+    lam = feasible_rate(spiral.x - spiral.goal, spiral.t, 100.0)
+    assert 1.0 < lam < 2.0                  # measured 1.23/s for the spiral at KAPPA = 100
+    r = np.linalg.norm(spiral.x - spiral.goal, axis=-1)
+    growth = r * np.exp(lam * (spiral.t - spiral.t[:, :1])) / r[:, :1]
+    assert growth.max() == pytest.approx(10.0, rel=1e-9)     # exactly sqrt(KAPPA) at the binding sample
+    with pytest.warns(RateFeasibilityWarning, match=r"largest feasible rate is 1\.2"):
+        lfd.train("contraction", spiral, progress=False, rate=3.0, iterations=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RateFeasibilityWarning)
+        lfd.train("contraction", spiral, progress=False, rate=1.0, iterations=2)
 
 
 # ---------------------------------------------------------------- the construction, Eq. (C2)
@@ -115,7 +170,8 @@ def test_latent_matrix_is_contracting_with_the_requested_rate(weak: ContractionF
         assert np.linalg.eigvalsh(a + a.T).max() <= -2 * rate + 1e-12
 
 
-def test_metric_is_jphi_t_jphi_in_user_units(weak: ContractionField, spiral: lfd.DemoSet) -> None:
+def test_metric_is_jphi_t_jphi_in_user_units_and_within_its_bounds(weak: ContractionField,
+                                                                   spiral: lfd.DemoSet) -> None:
     x = spiral.x[0, ::25]
     s, goal = weak.norm.scale, weak.norm.goal
     flow = weak.module.flow
@@ -125,44 +181,70 @@ def test_metric_is_jphi_t_jphi_in_user_units(weak: ContractionField, spiral: lfd
 
     for xi, mi in zip(x, weak.metric(x)):
         j = torch.autograd.functional.jacobian(phi_user, torch.as_tensor(xi)).numpy()
-        assert np.allclose(mi, j.T @ j, rtol=1e-12, atol=1e-12 * np.abs(mi).max())
-    assert weak.metric(x[0]).shape == (2, 2) and weak.metric(x.reshape(2, -1, 2)).shape == (2, x.shape[0] // 2, 2, 2)
+        assert np.allclose(mi, j.T @ j, rtol=1e-10, atol=1e-10 * np.abs(mi).max())
+    a, b = weak.metric_bounds
+    assert weak.condition_bound == pytest.approx(b / a) and weak.condition_bound <= 100.0 * (1 + 1e-9)
+    far = spiral.goal + s * far_points(2).numpy()
+    eig = np.linalg.eigvalsh(weak.metric(far))
+    assert eig.min() >= a * (1 - 1e-9) and eig.max() <= b * (1 + 1e-9)
 
 
 # ---------------------------------------------------------------- fit quality and guarantees
 
 def test_weak_model_reproduces_the_spiral(weak: ContractionField, spiral: lfd.DemoSet) -> None:
-    xs = weak.rollout(spiral.x[:, 0], spiral.t[0])          # the spiral's demos share their times
+    xs = weak.exact_rollout(spiral.x[:, 0], spiral.t[0])     # the spiral's demos share their times
     rmse = float(np.sqrt(((xs - spiral.x) ** 2).sum(-1).mean()))
-    assert rmse < 0.05          # measured 0.027 (the spiral spans 1.84)
-    assert np.linalg.norm(xs[:, -1] - spiral.goal, axis=1).max() < 0.05   # measured 0.026
+    assert rmse < 0.2           # measured 0.11 at KAPPA = 100 (the spiral spans 1.84; 0.02 at KAPPA = inf)
+    assert np.linalg.norm(xs[:, -1] - spiral.goal, axis=1).max() < 0.2
 
 
-def test_exact_rollout_matches_the_ode_solver(weak: ContractionField, spiral: lfd.DemoSet) -> None:
-    t = np.linspace(0, 5, 501)
-    exact = weak.exact_rollout(spiral.x[:, 0], t)
-    ode = weak.rollout(spiral.x[:, 0], t, method="rk4")
-    assert np.abs(exact - ode).max() < 1e-5
+def test_rk4_at_the_control_step_tracks_the_exact_flow(strong: ContractionField, spiral: lfd.DemoSet) -> None:
+    """RK4 at 2 ms (500 Hz) from starts all over the 1.5x box stays within 1e-3 of the extent of Eq. (C4)."""
+    lo, hi = spiral.bounds(0.5)
+    corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])
+    starts = np.vstack([corners, np.random.default_rng(3).uniform(lo, hi, size=(12, 2))])
+    t = np.arange(0.0, 3.0 + 1e-9, 0.002)
+    exact = strong.exact_rollout(starts, t)
+    rk4 = strong.rollout(starts, t, method="rk4")
+    extent = float((spiral.x.max((0, 1)) - spiral.x.min((0, 1))).max())
+    assert np.abs(exact - rk4).max() < 1e-3 * extent
 
 
 def test_strong_rate_converges_measurably_faster(weak: ContractionField, strong: ContractionField,
                                                  spiral: lfd.DemoSet) -> None:
-    t = np.linspace(0.0, 4.0, 41)
-    r_weak = [fitted_rate(weak, x0, t) for x0 in spiral.x[:, 0]]
-    r_strong = [fitted_rate(strong, x0, t) for x0 in spiral.x[:, 0]]
-    assert min(r_strong) > 2.0 * max(r_weak)          # measured >= 2.2 vs <= 0.79 (seed 0)
+    """Distances to the goal obey |x(t) - g| <= sqrt(b/a) e^(-lambda t) |x(0) - g| and decay faster
+    under the strong model."""
+    t = np.linspace(0.0, 8.0, 81)
+    lo, hi = spiral.bounds(0.5)
+    starts = np.random.default_rng(5).uniform(lo, hi, size=(10, 2))
+    fitted = {}
+    for field in (weak, strong):
+        d = np.linalg.norm(field.exact_rollout(starts, t) - spiral.goal, axis=-1)     # (10, T)
+        bound = math.sqrt(field.condition_bound) * np.exp(-field.rate * t) * d[:, :1]
+        assert (d <= bound * (1 + 1e-6)).all()
+        fitted[field.rate] = -np.polyfit(t[20:], np.log(d[:, 20:]).T, 1)[0]
+    assert fitted[STRONG].min() > fitted[WEAK].max()
 
 
-def test_neighbours_obey_the_contraction_bound(weak: ContractionField, strong: ContractionField,
-                                               spiral: lfd.DemoSet) -> None:
-    """|dx(t)| <= sqrt(b(x0) / a(x(t))) |dx(0)| e^{-lambda t}: the consequence of Eq. (C1) in M = J_phi' J_phi."""
+def test_worst_transient_growth_stays_below_the_analytic_constant(weak: ContractionField,
+                                                                  strong: ContractionField,
+                                                                  spiral: lfd.DemoSet) -> None:
+    """A seeded random search for the largest |dx(t)| / |dx(0)| between neighbours starting in the
+    1.5x box never exceeds sqrt(b/a) e^(-lambda t) (Eq. (C1) with the analytic a, b)."""
+    lo, hi = spiral.bounds(0.5)
+    rng = np.random.default_rng(11)
     t = np.linspace(0.0, 6.0, 121)
     for field in (weak, strong):
-        for x0 in spiral.x[:, 0]:
-            x, dist = neighbours(field, x0, t)
-            eig = np.linalg.eigvalsh(field.metric(x))
-            bound = np.sqrt(eig[0, -1] / eig[:, 0]) * dist[0] * np.exp(-field.rate * t)
-            assert (dist <= 1.001 * bound + 1e-13).all()
+        x0 = rng.uniform(lo, hi, size=(200, 2))
+        u = rng.normal(size=(200, 2))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        eps = 1e-6 * float((hi - lo).max())
+        xs = field.exact_rollout(np.vstack([x0, x0 + eps * u]), t)
+        growth = np.linalg.norm(xs[200:] - xs[:200], axis=-1) / eps             # (200, T)
+        assert np.isfinite(growth).all()
+        bound = math.sqrt(field.condition_bound) * np.exp(-field.rate * t)
+        assert (growth <= bound * (1 + 1e-3)).all()
+        assert growth.max() <= 10.0 * (1 + 1e-3)
 
 
 def test_every_start_around_the_demos_converges(weak: ContractionField, strong: ContractionField,
@@ -174,25 +256,24 @@ def test_every_start_around_the_demos_converges(weak: ContractionField, strong: 
         dist = np.linalg.norm(end - spiral.goal, axis=-1)
         assert np.isfinite(dist).all()
         assert dist[:, 2].max() < 1e-3
-        assert (dist[:, 2] <= dist[:, 1] + 1e-12).all()
-    ode = weak.rollout(starts[:10], np.linspace(0.0, 40.0, 801))
-    assert np.linalg.norm(ode[:, -1] - spiral.goal, axis=-1).max() < 1e-3
 
 
 # ---------------------------------------------------------------- numpy path, files, determinism
 
 @pytest.mark.parametrize("spec", ["spiral", "spiral3d"])
-def test_numpy_point_path_equals_torch_path(spec: str, weak: ContractionField) -> None:
+def test_single_point_call_uses_the_numpy_path_and_equals_the_torch_path(spec: str, weak: ContractionField) -> None:
     demos = lfd.load_demos(spec)
     field = weak if spec == "spiral" else lfd.train("contraction", demos, progress=False, iterations=20)
     f = field.point_fn()
     pts = np.random.default_rng(1).uniform(*demos.bounds(1.0), size=(50, demos.dim))
-    ref = field(pts)
+    ref = field(pts)                                   # batched: the torch path
     got = np.stack([f(p) for p in pts])
-    assert np.abs(got - ref).max() <= 1e-10 * max(1.0, np.abs(ref).max())
+    one = np.stack([field(p) for p in pts])           # one point: dispatched to the numpy path
+    tol = 1e-10 * max(1.0, np.abs(ref).max())
+    assert np.abs(got - ref).max() <= tol and np.abs(one - ref).max() <= tol
 
 
-def test_model_file_round_trips_bit_for_bit(weak: ContractionField, tmp_path) -> None:
+def test_model_file_round_trips(weak: ContractionField, tmp_path) -> None:
     path = tmp_path / "c.pt"
     weak.save(path)
     back = lfd.load(str(path))
@@ -201,8 +282,8 @@ def test_model_file_round_trips_bit_for_bit(weak: ContractionField, tmp_path) ->
     sd, sd2 = weak.module.state_dict(), back.module.state_dict()
     assert sd.keys() == sd2.keys() and all(torch.equal(sd[k], sd2[k]) for k in sd)
     x = np.random.default_rng(2).uniform(-1, 1, size=(20, 2))
-    assert np.array_equal(back(x), weak(x)) and np.array_equal(back.metric(x), weak.metric(x))
-    assert back.history["demo_box"] == weak.history["demo_box"]
+    assert np.allclose(back(x), weak(x), rtol=1e-13, atol=1e-13)
+    assert back.metric_bounds == pytest.approx(weak.metric_bounds, rel=1e-12)
 
 
 def test_training_is_deterministic_for_a_seed(spiral: lfd.DemoSet) -> None:
@@ -210,9 +291,9 @@ def test_training_is_deterministic_for_a_seed(spiral: lfd.DemoSet) -> None:
     b = lfd.train("contraction", spiral, seed=3, progress=False, iterations=15)
     c = lfd.train("contraction", spiral, seed=4, progress=False, iterations=15)
     sa, sb, sc = (f.module.state_dict() for f in (a, b, c))
-    assert all(torch.equal(sa[k], sb[k]) for k in sa)
+    assert all(torch.equal(sa[k], sb[k]) for k in sa)          # the same computation, one process
     assert a.history["loss"] == b.history["loss"]
-    assert not torch.equal(sa["flow.omega"], sc["flow.omega"])
+    assert not torch.equal(sa["flow.w1"], sc["flow.w1"])
     assert len(a.history["loss"]) >= 15 and a.history["loss"][-1] < a.history["loss"][0]
 
 
@@ -235,3 +316,17 @@ def test_ctrl_c_keeps_the_best_model(spiral: lfd.DemoSet, monkeypatch: pytest.Mo
     assert h["best_loss"] == h["loss"][best] < h["loss"][0]
     kept = field.module.state_dict()
     assert all(torch.equal(kept[k], states[best][k]) for k in kept)
+
+
+def test_the_same_seed_gives_the_same_model_in_another_process() -> None:
+    """Bit for bit across processes (MKL's reproducible branch, set by ``import lfd``): before it,
+    1 of 8 processes differed in the 11th digit."""
+    import subprocess
+    import sys
+
+    code = ("import hashlib, lfd; f = lfd.train('contraction', lfd.spiral(), seed=0, iterations=20); "
+            "h = hashlib.sha256(); [h.update(v.numpy().tobytes()) for _, v in sorted(f.module.state_dict().items())]; "
+            "print(h.hexdigest())")
+    out = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+           for _ in range(2)]
+    assert out[0] == out[1] and len(out[0].strip()) == 64

@@ -12,7 +12,7 @@ import torch
 import lfd
 from lfd.demos import DemoSet, lasa, load_demos, load_file, save_file, spiral, spiral3d
 from lfd.errors import DemoError, ModelError
-from lfd.modelfile import FORMAT_VERSION, load_payload, save_payload
+from lfd.modelfile import FORMAT_VERSION, atomic_write, load_payload, payload_checksum, save_payload
 
 
 # ---------------------------------------------------------------- generators and LASA
@@ -169,7 +169,7 @@ def test_npz_shape_errors(tmp_path: Path) -> None:
         with pytest.raises(DemoError, match=f"{name.replace('.', r'[.]')}: {pattern}"):
             load_file(path)
     (tmp_path / "junk.npz").write_bytes(b"not a zip file at all")
-    with pytest.raises(DemoError, match=r"junk\.npz: cannot read"):
+    with pytest.raises(DemoError, match=r"junk\.npz: not an NPZ file"):
         load_file(tmp_path / "junk.npz")
 
 
@@ -253,6 +253,109 @@ def test_bad_model_files(tmp_path: Path) -> None:
     (tmp_path / "evil.pt").write_bytes(pickle.dumps({"x": _Evil()}, protocol=2))
     with pytest.raises(ModelError, match=r"evil\.pt: not a readable model file"):
         load_payload(tmp_path / "evil.pt")
-    torch.save({**_payload(), "format_version": FORMAT_VERSION, "learner": "nope"}, tmp_path / "who.pt")
+    who = {**_payload(), "format_version": FORMAT_VERSION, "learner": "nope"}
+    torch.save({**who, "checksum": payload_checksum(who)}, tmp_path / "who.pt")
     with pytest.raises(ModelError, match=r"who\.pt: unknown learner 'nope'"):
         lfd.load(str(tmp_path / "who.pt"))
+
+
+def _signed(payload: dict) -> dict:
+    """A crafted payload with a valid checksum, as an attacker who knows the format would write."""
+    payload = {"format_version": FORMAT_VERSION, **payload}
+    return {**payload, "checksum": payload_checksum(payload)}
+
+
+def test_flipped_weight_byte_fails_the_checksum(tmp_path: Path) -> None:
+    payload = _payload()
+    save_payload(payload, tmp_path / "m.pt")
+    data = bytearray((tmp_path / "m.pt").read_bytes())
+    at = bytes(data).find(payload["state_dict"]["w"].numpy().tobytes())
+    assert at > 0
+    data[at + 13] ^= 0x10  # one bit of one weight: still a readable archive
+    (tmp_path / "m.pt").write_bytes(bytes(data))
+    with pytest.raises(ModelError, match=r"m\.pt: checksum mismatch: the model file is corrupt"):
+        load_payload(tmp_path / "m.pt")
+
+
+def test_crafted_payloads_are_model_errors(tmp_path: Path) -> None:
+    nan = _payload()
+    nan["state_dict"]["w"][0, 0] = float("nan")
+    cases = {
+        "norm.pt": ({**_payload(), "normalization": {}}, "normalization must hold goal and scale"),
+        "scale.pt": ({**_payload(), "normalization": {"goal": [0.0, 1.0], "scale": -1.0}},
+                     "a positive scale"),
+        "goal.pt": ({**_payload(), "normalization": {"goal": [0.0], "scale": 1.0}}, "2 finite goal"),
+        "nan.pt": (nan, "the model's weights contain NaN or inf"),
+        "dim.pt": ({**_payload(), "dim": 7}, "dim must be 2 or 3"),
+        "box.pt": ({**_payload(), "history": {"demo_box": [[0.0], [1.0]]}}, "demo_box"),
+    }
+    for name, (payload, message) in cases.items():
+        torch.save(_signed(payload), tmp_path / name)
+        with pytest.raises(ModelError, match=f"{name.replace('.', '[.]')}: .*{message}"):
+            lfd.load(str(tmp_path / name))
+    torch.save({**_payload(), "state_dict": {"w": [1.0]}, "format_version": FORMAT_VERSION,
+                "checksum": "0" * 64}, tmp_path / "sd.pt")
+    with pytest.raises(ModelError, match=r"sd\.pt: cannot checksum .* 'w' is not a dense tensor"):
+        lfd.load(str(tmp_path / "sd.pt"))
+    old = {**_payload(), "format_version": 1}
+    torch.save(old, tmp_path / "v1.pt")
+    with pytest.raises(ModelError, match=r"v1\.pt: model format version 1 has no checksum .* train the model again"):
+        load_payload(tmp_path / "v1.pt")
+    torch.save(_signed({**_payload(), "config": {"hidden": "wide"}}), tmp_path / "cfg.pt")
+    with pytest.raises(ModelError, match=r"cfg\.pt: model does not match its learner 'node'"):
+        lfd.load(str(tmp_path / "cfg.pt"))
+
+
+def test_never_shows_torchs_weights_only_advice(tmp_path: Path) -> None:
+    (tmp_path / "m.json").write_text('{"learner": "node"}')
+    (tmp_path / "evil.pt").write_bytes(pickle.dumps({"x": _Evil()}, protocol=2))
+    for name in ("m.json", "evil.pt"):
+        with pytest.raises(ModelError) as info:
+            lfd.load(str(tmp_path / name))
+        assert "weights_only" not in str(info.value) and len(str(info.value).splitlines()) == 1
+
+
+def test_atomic_write_names_the_users_path_and_cleans_up(tmp_path: Path) -> None:
+    def fail(f) -> None:  # type: ignore[no-untyped-def]
+        f.write(b"partial")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write(tmp_path / "m.pt", fail)
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "file").write_text("")
+    with pytest.raises(OSError) as info:  # the parent is a file: mkdir/mkstemp fail
+        atomic_write(tmp_path / "file" / "m.pt", lambda f: f.write(b"x"))
+    assert info.value.filename == str(tmp_path / "file" / "m.pt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+# ---------------------------------------------------------------- hostile demo files
+
+def test_hostile_demo_files(tmp_path: Path) -> None:
+    d = spiral(n_demos=2, n_samples=60, seed=1)
+    save_file(d, tmp_path / "d.npz")
+    save_file(d, tmp_path / "d.csv")
+    data = (tmp_path / "d.npz").read_bytes()
+    (tmp_path / "empty.npz").write_bytes(b"")
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    (tmp_path / "zip.npz").write_bytes(b"PK\x03\x04" + b"\x00" * 40)
+    np.savez(tmp_path / "complex.npz", t=d.t, x=d.x.astype(complex))
+    np.savez(tmp_path / "text.npz", t=d.t, x=np.full(d.x.shape, "a"))
+    np.savez(tmp_path / "tiny.npz", t=d.t * 1e-300, x=d.x)
+    np.savez(tmp_path / "huge.npz", t=d.t, x=d.x * 1e306)
+    np.savez(tmp_path / "long.npz", t=d.t * 1e300, x=d.x)
+    cases = {
+        "empty.npz": "not an NPZ file", "cut.npz": "not an NPZ file", "zip.npz": "not an NPZ file",
+        "complex.npz": "x holds complex numbers", "text.npz": "x must hold numbers",
+        "tiny.npz": "time step of .* below 1e-09 s; times must be in seconds",
+        "huge.npz": "the velocities of demo 0 overflow",
+        "long.npz": "a demo lasts .* s, more than 1e[+]06 s; times must be in seconds",
+    }
+    for name, message in cases.items():
+        with pytest.raises(DemoError, match=f"{name.replace('.', '[.]')}: {message}") as info:
+            load_file(tmp_path / name)
+        assert len(str(info.value).splitlines()) == 1
+    bom = tmp_path / "bom.csv"  # a spreadsheet's "CSV UTF-8": a byte-order mark before the header
+    bom.write_bytes(b"\xef\xbb\xbf" + (tmp_path / "d.csv").read_bytes())
+    np.testing.assert_allclose(load_file(bom).x, d.x, rtol=1e-15, atol=0)

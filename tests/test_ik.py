@@ -149,12 +149,20 @@ def test_dls_damping_bounds_the_gain_near_a_singularity(robots: dict[str, RobotM
 
 
 def test_kin_argument_reuses_an_updated_kinematics(robots: dict[str, RobotModel]) -> None:
+    """solve(q, ..., kin=K) uses K's Jacobian: with an independent Kinematics updated at q it equals
+    the solve that updates its own; with K left at another posture it does not (K was used)."""
     robot = robots["panda"]
-    ik = DifferentialIK(robot, "dls")
     q = robot.q_home + 0.1
-    ik.kinematics.update(q)
     twist = np.array([0.1, 0.0, -0.1, 0.2, 0.0, 0.0])
-    np.testing.assert_array_equal(ik.solve(q, twist, DT, kin=ik.kinematics), ik.solve(q, twist, DT))
+    reference = DifferentialIK(robot, "dls").solve(q, twist, DT)  # updates its own kinematics at q
+    ik = DifferentialIK(robot, "dls")
+    ik.kinematics.update(robot.q_home - 0.3)  # its own kinematics elsewhere: must not be used
+    kin = Kinematics(robot)
+    kin.update(q)
+    np.testing.assert_allclose(ik.solve(q, twist, DT, kin=kin), reference, rtol=1e-12, atol=1e-12)
+    stale = Kinematics(robot)
+    stale.update(robot.q_home - 0.3)
+    assert np.linalg.norm(ik.solve(q, twist, DT, kin=stale) - reference) > 1e-3
 
 
 @pytest.mark.parametrize("name", BUILTIN_ROBOTS)

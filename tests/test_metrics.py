@@ -209,3 +209,19 @@ def test_reproduce_batches_without_changing_rollouts(spiral_field_2d: VelocityFi
         demos = DemoSet(t, np.stack([spiral_field_2d.rollout(x, ti) for x, ti in zip(x0, t)]))
         expected = np.stack([spiral_field_2d.rollout(x[0], ti) for x, ti in zip(demos.x, t)])
         assert np.abs(reproduce(spiral_field_2d, demos) - expected).max() < 1e-12
+
+
+def test_huge_warping_tables_are_refused_before_allocation() -> None:
+    """DTW of two 10^6-sample curves once asked for 298 GiB; now a ValueError, and ``evaluate``
+    subsamples (``dtw_step_for``) to stay under MAX_DTW_CELLS."""
+    from lfd.metrics import MAX_DP_CELLS, MAX_DTW_CELLS, dtw_step_for
+
+    n = int(MAX_DP_CELLS ** 0.5) + 1
+    a = np.zeros((n, 2))
+    with pytest.raises(ValueError, match="warping table is too large"):
+        dtw(a, a)
+    with pytest.raises(ValueError, match="warping table is too large"):
+        frechet(a, a)
+    assert dtw(a, a, step=dtw_step_for(n, n)) == pytest.approx(0.0, abs=1e-12)
+    k = dtw_step_for(10**6, 10**6)
+    assert (-(-10**6 // k)) ** 2 <= MAX_DTW_CELLS < (-(-10**6 // (k - 1))) ** 2

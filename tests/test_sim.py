@@ -129,7 +129,8 @@ def test_environment_reset_and_step(panda, demos):
     ts = env.reset()
     assert tuple(ts.observation) == sim.OBSERVATION_KEYS
     shapes = {k: v.shape for k, v in ts.observation.items()}
-    assert shapes == {"joint_positions": (7,), "joint_velocities": (7,), "ee_position": (3,)}
+    assert shapes == {"joint_positions": (7,), "joint_velocities": (7,), "ee_position": (3,),
+                      "task_position": (2,), "goal": (2,), "joint_limit": (7,)}
     np.testing.assert_allclose(ts.observation["ee_position"], pl.to_world(demos.x[0, 0]), atol=1e-5)
     spec = env.action_spec()
     assert spec.shape == (2,) and spec.name == "ee_velocity"
@@ -236,7 +237,7 @@ def test_render_error_is_one_clear_line(monkeypatch):
 def test_model_cache_trains_once_and_keys_on_seed_and_options(tmp_path, demos):
     from sim.modelcache import cached_field
 
-    opts = {"layers": 2, "features": 8, "iterations": 5}
+    opts = {"layers": 2, "hidden": 8, "iterations": 5}
     f1, path, trained = cached_field("contraction", demos, 0, opts, tmp_path, progress=False)
     assert trained and path.is_file() and path.parent == tmp_path
     f2, path2, trained2 = cached_field("contraction", demos, 0, opts, tmp_path, progress=False)
@@ -244,7 +245,7 @@ def test_model_cache_trains_once_and_keys_on_seed_and_options(tmp_path, demos):
     x = demos.x[0, :5]
     np.testing.assert_array_equal(f1(x), f2(x))
     assert cached_field("contraction", demos, 1, opts, tmp_path, progress=False)[1] != path
-    assert cached_field("contraction", demos, 0, {**opts, "features": 4}, tmp_path, progress=False)[1] != path
+    assert cached_field("contraction", demos, 0, {**opts, "hidden": 4}, tmp_path, progress=False)[1] != path
     path.write_bytes(b"not a model")
     f3, _, trained3 = cached_field("contraction", demos, 0, opts, tmp_path, progress=False)
     assert trained3

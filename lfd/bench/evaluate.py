@@ -9,8 +9,11 @@ shared by the velocity-field learners and the time-indexed DMP baseline:
 - ``step_time_us(points, calls)``: median time of one single-point evaluation.
 - ``grid(gx, gy)``: the field on a grid for streamlines (None for a time-indexed model).
 
-Per demo i (N demos, x_i of shape (T, d)): rmse(y_i, x_i), dtw(y_i, x_i, step), chamfer_dtwd,
-frechet, swept_area, velocity_rmse(v_i, xd_i), cosine_error(v_i, xd_i), all in mm and mm/s.
+Per demo i (N demos, x_i of shape (T, d), each reproduced on its own time grid t_i): rmse(y_i, x_i),
+dtw(y_i, x_i, step), dtw_per_sample (all samples, / T), chamfer_dtwd, chamfer_dtwd_std (on data
+divided by the shape's per-coordinate std, dimensionless), frechet, swept_area, velocity_rmse(v_i, xd_i),
+cosine_error(v_i, xd_i), in mm, mm², mm/s. Per shape: the spurious-attractor fraction of the
+35 x 35 grid of starts over the demos' bounding box.
 """
 
 from __future__ import annotations
@@ -27,8 +30,8 @@ from lfd.bench import protocol as proto
 from lfd.demos import DemoSet, lasa
 from lfd.field import VelocityField
 
-METRICS: tuple[str, ...] = ("rmse", "dtw", "chamfer_dtwd", "frechet", "swept_area", "velocity_rmse",
-                            "cosine_error")
+METRICS: tuple[str, ...] = ("rmse", "dtw", "dtw_per_sample", "chamfer_dtwd", "chamfer_dtwd_std", "frechet",
+                            "swept_area", "velocity_rmse", "cosine_error")
 TIMING_REPEATS = 5
 
 
@@ -36,6 +39,7 @@ class Model(TypingProtocol):
     """What the benchmark asks of a trained learner (see the module docstring)."""
 
     learner: str
+    autonomous: bool   # False: time-indexed (DMP), no spurious-attractor grid (default True if absent)
     config: dict[str, Any]
     train_time_s: float
     history: dict[str, Any]
@@ -66,6 +70,7 @@ class FieldModel:
 
     TOL = 1e-6
     MAX_STEPS = 2_000
+    autonomous = True
     FALLBACK_SUBSTEPS = 4
 
     def __init__(self, field: VelocityField) -> None:
@@ -138,7 +143,21 @@ def fit(learner: str, demos: DemoSet, seed: int, options: dict[str, Any]) -> Mod
         return fit_dmp(demos, **options)
     from lfd.learners import train
 
-    return FieldModel(train(learner, demos, seed=seed, progress=False, **options))
+    field = train(learner, demos, seed=seed, progress=False, **options)
+    return PhaseFieldModel(field) if hasattr(field, "rollout_with_phase") else FieldModel(field)
+
+
+class PhaseFieldModel(FieldModel):
+    """A field with a phase state (``lfd.learners.tracking``) as a benchmark Model: its rollouts
+    integrate (x, s) jointly from s = 0 with fixed-step RK4 (the phase stops at 1, a kink adaptive
+    steps dislike): reproductions at the demos' mean sample interval, rollouts on their output grid
+    (K dt <= 0.05 there for K <= 3/s)."""
+
+    def _solve(self, x0: np.ndarray, t: np.ndarray, what: str, fallback_step: float) -> np.ndarray:
+        step = fallback_step if what == "reproduce" else float(t[1] - t[0])
+        self.integrators[what] = f"rk4 on (x, s), step {step:.3g} s"
+        with np.errstate(all="ignore"):
+            return self.field.rollout_with_phase(x0, t, method="rk4", step=step)[0]
 
 
 def score(model: Model, demos: DemoSet, dtw_step: int) -> tuple[dict[str, list[float]], np.ndarray]:
@@ -146,12 +165,15 @@ def score(model: Model, demos: DemoSet, dtw_step: int) -> tuple[dict[str, list[f
     reproductions y, shape (N, T, d)."""
     per: dict[str, list[float]] = {m: [] for m in METRICS}
     ys, vs = model.reproduce(demos.x, demos.t)
+    std = demos.x.reshape(-1, demos.dim).std(axis=0)   # (d,): the shape's data, all demos
     for x, xd, y, v in zip(demos.x, demos.xd, ys, vs):
         finite = bool(np.isfinite(y).all())
         row = {
             "rmse": metrics.rmse(y, x) if finite else np.inf,
             "dtw": metrics.dtw(y, x, step=dtw_step) if finite else np.inf,
+            "dtw_per_sample": metrics.dtw_per_sample(y, x) if finite else np.inf,
             "chamfer_dtwd": metrics.chamfer_dtwd(y, x) if finite else np.inf,
+            "chamfer_dtwd_std": metrics.chamfer_dtwd_std(y, x, std) if finite else np.inf,
             "frechet": metrics.frechet(y, x) if finite else np.inf,
             "swept_area": metrics.swept_area(y, x) if finite else np.inf,
             "velocity_rmse": metrics.velocity_rmse(v, xd) if np.isfinite(v).all() else np.inf,
@@ -183,6 +205,24 @@ def convergence(final: np.ndarray, goal: np.ndarray, st: proto.Starts, radius: f
     return out
 
 
+def spurious_grid(model: Model, demos: DemoSet, protocol: proto.Protocol) -> float | None:
+    """The spurious-attractor fraction of CONDOR/PUMA: of the ``protocol.spurious_grid`` squared
+    starts of ``proto.grid_starts`` (over the demos' bounding box), the fraction whose rollout
+    over the convergence horizon (``proto.horizon``) does not end within ``radius_mm`` of the
+    goal. None for a time-indexed model (``autonomous`` False: the DMP reaches the goal by
+    construction)."""
+    if not getattr(model, "autonomous", True):
+        return None
+    h, n = proto.horizon(demos, protocol)
+    before = model.integrators.get("rollouts")
+    final = model.rollouts(proto.grid_starts(demos, protocol), np.linspace(0.0, h, n))[:, -1]
+    if "rollouts" in model.integrators:            # record the grid's solver under its own name
+        model.integrators["grid"] = model.integrators.pop("rollouts")
+        if before is not None:
+            model.integrators["rollouts"] = before
+    return metrics.spurious_attractor_fraction(final, demos.goal, protocol.radius_mm)
+
+
 def evaluate_cell(learner: str, shape: str, seed: int, options: dict[str, Any],
                   protocol: proto.Protocol) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Train and score one (learner, shape, seed). Returns the JSON record and the arrays for
@@ -201,6 +241,8 @@ def evaluate_cell(learner: str, shape: str, seed: int, options: dict[str, Any],
     h, n = proto.horizon(demos, protocol)
     traj = model.rollouts(st.all, np.linspace(0.0, h, n))
     conv = {**convergence(traj[:, -1], demos.goal, st, protocol.radius_mm), "horizon_s": h, "n_steps": n}
+    conv["spurious_grid"] = spurious_grid(model, demos, protocol)
+    conv["n_grid"] = 0 if conv["spurious_grid"] is None else protocol.spurious_grid ** 2
 
     points = train.x.reshape(-1, train.dim)
     stride = max(1, len(points) // protocol.timing_calls)

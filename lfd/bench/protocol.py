@@ -13,6 +13,8 @@ of ``Protocol``; its hash keys the result cache, so changing any of them recompu
   ``box_grow`` (its size times 1 + box_grow), seeded by (``starts_seed``, crc32 of the shape).
 - Convergence: a rollout converges if it ends within ``radius_mm`` of the goal after
   horizon = ``horizon_factor`` x the longest demo's duration.
+- Spurious attractors (CONDOR/PUMA): the fraction of a ``spurious_grid`` x ``spurious_grid`` grid
+  of starts over the demos' bounding box (not grown) that does not converge.
 """
 
 from __future__ import annotations
@@ -27,8 +29,9 @@ import numpy as np
 
 from lfd.demos import LASA_SHAPES, DemoSet
 from lfd.errors import ConfigError
+from lfd.metrics import grid_starts as metric_grid_starts
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # 2: dtw_per_sample, chamfer_dtwd_std, lobe-sum swept area, spurious grid
 N_LASA_DEMOS = 7
 QUICK_SHAPES: tuple[str, ...] = ("Angle", "Sine", "GShape")
 
@@ -45,6 +48,7 @@ class Protocol:
     horizon_stride : convergence rollouts step horizon_stride x the demos' mean sample interval
     dtw_step : DTW on every dtw_step-th sample (the LASA convention is 4)
     grid : streamline grid points per side (for the figures)
+    spurious_grid : starts per side of the spurious-attractor grid over the demos' bounding box
     keep_points : samples kept per convergence rollout for the figures
     timing_calls : single-point evaluations timed per repeat (5 repeats, median)
     """
@@ -60,6 +64,7 @@ class Protocol:
     horizon_stride: int = 4
     dtw_step: int = 4
     grid: int = 40
+    spurious_grid: int = 35
     keep_points: int = 200
     timing_calls: int = 500
 
@@ -68,6 +73,8 @@ class Protocol:
             raise ConfigError(f"--train-demos must be between 1 and {N_LASA_DEMOS}, got {self.train_demos}")
         if self.ring_points < 0 or self.box_points < 0 or self.dtw_step < 1 or self.horizon_stride < 1:
             raise ConfigError("ring_points and box_points must be >= 0, dtw_step and horizon_stride >= 1")
+        if self.spurious_grid < 2:
+            raise ConfigError(f"spurious_grid must be >= 2, got {self.spurious_grid}")
         if not (self.radius_mm > 0 and self.horizon_factor > 0 and self.ring_radius >= 0):
             raise ConfigError("radius_mm and horizon_factor must be positive, ring_radius >= 0")
 
@@ -142,3 +149,11 @@ def horizon(demos: DemoSet, protocol: Protocol) -> tuple[float, int]:
     h = protocol.horizon_factor * float(durations.max())
     dt = protocol.horizon_stride * float(np.mean(np.diff(demos.t, axis=1)))
     return h, int(np.ceil(h / dt)) + 1
+
+
+def grid_starts(demos: DemoSet, protocol: Protocol) -> np.ndarray:
+    """The spurious-attractor starts: a ``spurious_grid`` x ``spurious_grid`` grid over the demos'
+    bounding box ``demos.bounds()``, corners included, shape (spurious_grid^2, 2)
+    (``lfd.metrics.grid_starts``)."""
+    lo, hi = demos.bounds()
+    return metric_grid_starts(lo, hi, protocol.spurious_grid)

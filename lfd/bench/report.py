@@ -16,14 +16,17 @@ import numpy as np
 from lfd.bench.evaluate import METRICS
 from lfd.modelfile import atomic_write
 
+# Each metric under its own name; formulas in docs/benchmark.md ("Reproduction metrics").
 LABELS: dict[str, str] = {
-    "dtw": "DTW (sum, mm)", "rmse": "RMSE (mm)", "chamfer_dtwd": "DTWD* (mm)", "frechet": "Fréchet (mm)",
-    "swept_area": "swept area (mm²)", "velocity_rmse": "vel. RMSE (mm/s)", "cosine_error": "cos. err.",
+    "dtw": "DTW (sum, mm)", "dtw_per_sample": "DTW/T (mm)", "rmse": "RMSE (mm)", "chamfer_dtwd": "DTWD* (mm)",
+    "chamfer_dtwd_std": "DTWD*/σ", "frechet": "Fréchet (mm)", "swept_area": "swept area (mm²)",
+    "velocity_rmse": "vel. RMSE (mm/s)", "cosine_error": "cos. err.",
 }
-ORDER: tuple[str, ...] = ("dtw", "rmse", "chamfer_dtwd", "frechet", "swept_area", "velocity_rmse",
-                          "cosine_error")
-FORMATS: dict[str, str] = {"dtw": ".0f", "rmse": ".2f", "chamfer_dtwd": ".2f", "frechet": ".2f",
-                           "swept_area": ".0f", "velocity_rmse": ".1f", "cosine_error": ".3f"}
+ORDER: tuple[str, ...] = ("dtw", "dtw_per_sample", "rmse", "chamfer_dtwd", "chamfer_dtwd_std", "frechet",
+                          "swept_area", "velocity_rmse", "cosine_error")
+FORMATS: dict[str, str] = {"dtw": ".0f", "dtw_per_sample": ".2f", "rmse": ".2f", "chamfer_dtwd": ".2f",
+                           "chamfer_dtwd_std": ".3f", "frechet": ".2f", "swept_area": ".0f",
+                           "velocity_rmse": ".1f", "cosine_error": ".3f"}
 
 # Peers measured on six LASA shapes (true DTW over every 4th sample, one torch thread), from the brief.
 REFERENCES: dict[str, dict[str, float]] = {
@@ -53,7 +56,8 @@ def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str
     """{shape: values} for one learner, averaged over seeds: each metric of ``train`` and of
     ``test`` (None without held-out demos), ``converged`` (all starts), ``converged_perturbed``,
     ``n_perturbed``, ``train_time_s``, ``step_time_us``, ``fallback`` (a rollout needed the
-    fixed-step rk4 fallback of ``lfd.bench.evaluate.FieldModel``)."""
+    fixed-step rk4 fallback of ``lfd.bench.evaluate.FieldModel``), ``spurious`` (fraction of the
+    35 x 35 grid of starts that does not converge; None for a time-indexed model)."""
     by: dict[str, list[dict[str, Any]]] = {}
     for r in records:
         if r["learner"] == learner:
@@ -68,6 +72,8 @@ def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str
         n_pert = [c["n_ring"] + c["n_box"] for c in conv]
         n_ok = [(c["ring"] or 0.0) * c["n_ring"] + (c["box"] or 0.0) * c["n_box"] for c in conv]
         row["converged"] = float(np.mean([c["rate"] for c in conv]))
+        grid = [c.get("spurious_grid") for c in conv]
+        row["spurious"] = None if any(g is None for g in grid) else float(np.mean(grid))
         row["converged_perturbed"] = float(np.sum(n_ok) / max(np.sum(n_pert), 1))
         row["n_perturbed"] = int(np.sum(n_pert))
         row["n_perturbed_ok"] = int(round(float(np.sum(n_ok))))
@@ -80,7 +86,8 @@ def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str
 
 
 def summarize(records: list[dict[str, Any]], learners: list[str]) -> dict[str, Any]:
-    """{learner: {"shapes", "train": {metric: {mean, median}}, "test" (or None), "converged",
+    """{learner: {"shapes", "train": {metric: {mean, median}}, "test" (or None), "converged", "spurious"
+    (or None),
     "converged_perturbed" (pooled over all perturbed starts), "shapes_all_converged",
     "train_time_s" (mean, median, total), "step_time_us", "cell_s_total" (wall time of training
     and scoring all its cells, one process each)}}."""
@@ -95,6 +102,8 @@ def summarize(records: list[dict[str, Any]], learners: list[str]) -> dict[str, A
             s[split] = None if vals[0][split] is None else {
                 m: _stats([v[split][m] for v in vals]) for m in METRICS}
         s["converged"] = _stats([v["converged"] for v in vals])
+        grid = [v["spurious"] for v in vals if v["spurious"] is not None]
+        s["spurious"] = _stats(grid) if len(grid) == len(vals) else None
         s["converged_perturbed"] = (sum(v["n_perturbed_ok"] for v in vals)
                                     / max(sum(v["n_perturbed"] for v in vals), 1))
         s["shapes_all_converged"] = sum(v["converged"] == 1.0 for v in vals)
@@ -127,7 +136,8 @@ def summary_table(summary: dict[str, Any], split: str) -> str:
     """One row per learner, each cell 'mean / median' over shapes."""
     header = ["learner", "shapes"] + [LABELS[m] for m in ORDER]
     if split == "train":
-        header += ["converged (all starts)", "converged (perturbed)", "train (s)", "step (µs)"]
+        header += ["converged (all starts)", "converged (perturbed)", "spurious (35×35 grid)", "train (s)",
+                   "step (µs)"]
     rows = []
     for learner, s in summary.items():
         if s[split] is None:
@@ -139,6 +149,8 @@ def summary_table(summary: dict[str, Any], split: str) -> str:
             all_ok = f"{s['shapes_all_converged']}/{s['shapes']} shapes all"
             row += [f"{100 * s['converged']['mean']:.1f}% ({all_ok})",
                     f"{100 * s['converged_perturbed']:.1f}%",
+                    "—" if s["spurious"] is None else f"{100 * s['spurious']['mean']:.1f}% / "
+                                                       f"{100 * s['spurious']['median']:.1f}%",
                     f"{_fmt(s['train_time_s']['mean'], '.2f')} / {_fmt(s['train_time_s']['median'], '.2f')}",
                     f"{_fmt(s['step_time_us']['mean'], '.1f')} / {_fmt(s['step_time_us']['median'], '.1f')}"]
         rows.append(row)
@@ -152,6 +164,8 @@ def shape_table(rows: dict[str, dict[str, Any]], shapes: list[str], split: str) 
         (LABELS[m], (lambda r, m=m: r[split][m]), (lambda v, m=m: _fmt(v, FORMATS[m]))) for m in ORDER]
     if split == "train":
         cols += [("converged", lambda r: r["converged"], lambda v: f"{100 * v:.1f}%"),
+                 ("spurious (35×35)", lambda r: math.nan if r["spurious"] is None else r["spurious"],
+                  lambda v: "—" if math.isnan(v) else f"{100 * v:.1f}%"),
                  ("train (s)", lambda r: r["train_time_s"], lambda v: _fmt(v, ".2f")),
                  ("step (µs)", lambda r: r["step_time_us"], lambda v: _fmt(v, ".1f"))]
     body = [[shape] + [fmt(get(rows[shape])) for _, get, fmt in cols] for shape in shapes]
@@ -203,6 +217,9 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
                 + ", ".join(f"{k} ({rows[k]['train']['dtw']:.0f})" for k in worst) + ". "
                 f"Its cells took {s['cell_s_total'] / 60:.1f} min of worker time in all "
                 f"(training and scoring, one process each). ")
+        if s.get("spurious") is not None:
+            text += (f"On the 35×35 grid of starts over the demos' box, {100 * s['spurious']['mean']:.1f}% "
+                     "do not reach the goal (spurious-attractor fraction, mean over shapes). ")
         if failing:
             text += ("Starts that do not converge on: " + ", ".join(
                 f"{k} ({100 * rows[k]['converged']:.0f}%)" for k in failing) + ".")
@@ -321,7 +338,13 @@ def write_report(path: str | Path, records: list[dict[str, Any]], learners: list
         f"- {len(shapes)} shapes, seeds {run['seeds']}, trained on demos 0..{k - 1}"
         + (f", demos {k}..6 held out" if k < 7 else " (all 7)") + "; metrics in mm, DTW = sum of "
         f"distances along the optimal warping path over every {protocol['dtw_step']}th sample; "
-        "DTWD* = closest-point (Chamfer) distance, not DTW.",
+        "DTW/T = DTW over all samples divided by the sample count (CONDOR, PUMA); "
+        "DTWD* = closest-point (Chamfer) distance, not DTW; DTWD*/σ = the same on data divided by "
+        "its per-coordinate std (ELCD, NCDS); swept area = sum of quadrilateral areas, a crossed one "
+        "counted as the sum of its two lobes; formulas in docs/benchmark.md.",
+        f"- Spurious attractors (CONDOR, PUMA): fraction of a {protocol.get('spurious_grid', 35)}×"
+        f"{protocol.get('spurious_grid', 35)} grid of starts over the demos' bounding box that does not "
+        "converge (not computed for the time-indexed DMP).",
         f"- Convergence: within {protocol['radius_mm']:g} mm of the goal after "
         f"{protocol['horizon_factor']:g}x "
         f"the longest demo's duration, from {7} demo starts, {7 * protocol['ring_points']} ring starts "

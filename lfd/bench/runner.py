@@ -33,7 +33,7 @@ from lfd.bench.protocol import Protocol, stable_hash
 from lfd.modelfile import atomic_write
 
 # cells of slower learners first, so the pool's tail is short
-LEARNER_ORDER: tuple[str, ...] = ("node", "contraction", "dmp")
+LEARNER_ORDER: tuple[str, ...] = ("node", "contraction", "tracking", "dmp")
 
 
 def resolve_config(learner: str, options: dict[str, Any]) -> dict[str, Any]:

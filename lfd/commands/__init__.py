@@ -5,18 +5,76 @@ This file holds the one step several commands share: reading a model with its de
 
 from __future__ import annotations
 
-from lfd.demos import DemoSet, load_demos
+from typing import TYPE_CHECKING, Any
+
 from lfd.errors import DemoError
-from lfd.field import VelocityField
+
+if TYPE_CHECKING:  # imported when a command runs, so that ``lfd --help`` stays fast
+    from lfd.demos import DemoSet
+    from lfd.field import VelocityField
 
 
-def model_and_demos(model_path: str, spec: str) -> tuple[VelocityField, DemoSet]:
+def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False) -> tuple[VelocityField, DemoSet]:
     """Load a model file and a demo SPEC, and check that their dimensions agree."""
+    from lfd.demos import load_demos
     from lfd.learners import load
 
-    field = load(model_path)
+    field = load(model_path, allow_nonfinite)
     demos = load_demos(spec)
     if demos.dim != field.dim:
         raise DemoError(f"{demos.name}: demos are {demos.dim}-D but the model {model_path} is "
                         f"{field.dim}-D")
     return field, demos
+
+
+MAX_SEED = 2**63 - 1  # torch.manual_seed and numpy's generators take any seed in [0, 2^63)
+
+
+def seed(text: str) -> int:
+    """argparse type of ``--seed``: an integer in [0, 2^63 - 1]."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got '{text[:40]}'") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 2^63 - 1, got {text[:40]}")
+    return value
+
+
+def source_constant(module: str, name: str) -> Any:
+    """The literal value of ``name = <literal>`` in ``module``'s source, read without importing it
+    (so that ``lfd --help`` does not import torch through a module that defines a default)."""
+    import ast
+    import importlib
+    from pathlib import Path
+
+    # find_spec("a.b.c") would import the packages a and a.b: locate the file from the top package
+    top, *rest = module.split(".")
+    base = Path(importlib.import_module(top).__file__ or "").parent.joinpath(*rest)
+    origin = base / "__init__.py" if base.is_dir() else base.with_suffix(".py")
+    if origin.is_file():
+        with open(origin, encoding="utf-8") as f:
+            tree = ast.parse(f.read())
+        for node in tree.body:
+            target = node.target if isinstance(node, ast.AnnAssign) else (
+                node.targets[0] if isinstance(node, ast.Assign) and len(node.targets) == 1 else None)
+            if isinstance(target, ast.Name) and target.id == name and node.value is not None:
+                try:
+                    return ast.literal_eval(node.value)
+                except ValueError:
+                    break
+    return getattr(importlib.import_module(module), name)  # not a literal: import after all
+
+
+def check_output(path: str, what: str, inputs: dict[str, str | None] | None = None) -> None:
+    """Before any long work: refuse an output ``path`` that names one of ``inputs`` ({what: path})
+    or cannot be written (``OutputError``, exit 2)."""
+    from lfd.errors import OutputError
+    from lfd.modelfile import check_writable, same_file
+
+    for name, other in (inputs or {}).items():
+        if other and same_file(path, other):
+            raise OutputError(f"{path}: {what} would overwrite the {name}; choose another path")
+    check_writable(path, what)

@@ -9,15 +9,17 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
-BENCH_LEARNERS: tuple[str, ...] = ("node", "contraction", "dmp")
+BENCH_LEARNERS: tuple[str, ...] = ("node", "contraction", "tracking", "dmp")
 # --quick: fewer iterations, for the CI smoke test (merged under any --option given)
 QUICK_OPTIONS: dict[str, dict[str, Any]] = {
     "contraction": {"iterations": 60},
     "node": {"iters": 200},
+    "tracking": {},
     "dmp": {},
 }
 
@@ -54,9 +56,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _quick_shapes() -> tuple[str, ...]:
-    from lfd.bench.protocol import QUICK_SHAPES
+    from lfd.commands import source_constant
 
-    return QUICK_SHAPES
+    return tuple(source_constant("lfd.bench.protocol", "QUICK_SHAPES"))  # without importing numpy
 
 
 def resolve_learners(spec: str) -> list[str]:
@@ -121,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seeds < 1 or args.workers < 1:
         raise ConfigError("--seeds and --workers must be >= 1")
+    from lfd.commands import check_output
+
+    check_output(args.json, "--json", {"--notes file": args.notes})  # before hours of benchmark
+    check_output(args.report, "--report", {"--json file": args.json, "--notes file": args.notes})
     learners = resolve_learners(args.learner)
     shapes_by = resolve_shape_sets(args.shapes, learners, args.quick)
     shapes = list(dict.fromkeys(s for learner in learners for s in shapes_by[learner]))
@@ -140,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     load_start = _load()
     t0 = time.perf_counter()
     result = run_cells(cells, cache, workers=min(args.workers, max(len(cells), 1)), fresh=args.fresh,
-                       progress=True)
+                       progress=sys.stderr.isatty())  # a bar only on a terminal
     wall = time.perf_counter() - t0
     run_info = {
         "command": _command(args), "seeds": seeds, "workers": args.workers, "cpus": os.cpu_count(),

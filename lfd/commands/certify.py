@@ -13,13 +13,14 @@ import json
 import math
 from typing import Any
 
-import numpy as np
-
 EXIT_NOT_CERTIFIED = 1
+MAX_SAMPLES = 10_000_000  # grid points: ~1 GB of float64 work arrays in 3-D; beyond, refuse up front
 
 
-def parse_box(text: str) -> tuple[np.ndarray, np.ndarray]:
-    """'xmin,xmax,ymin,ymax(,zmin,zmax)' -> (lo, hi), each shape (d,)."""
+def parse_box(text: str) -> tuple[Any, Any]:
+    """'xmin,xmax,ymin,ymax(,zmin,zmax)' -> (lo, hi), each an array of shape (d,)."""
+    import numpy as np
+
     try:
         v = [float(s) for s in text.split(",")]
     except ValueError:
@@ -31,8 +32,11 @@ def parse_box(text: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.certify import DEFAULT_SAMPLES, DEFAULT_TOLERANCE, IDENTITY_RATE
+    from lfd.commands import source_constant
 
+    # read from lfd/certify.py without importing it (it imports torch; ``lfd --help`` stays fast)
+    DEFAULT_SAMPLES, DEFAULT_TOLERANCE, IDENTITY_RATE = (  # noqa: N806
+        source_constant("lfd.certify", n) for n in ("DEFAULT_SAMPLES", "DEFAULT_TOLERANCE", "IDENTITY_RATE"))
     p = subparsers.add_parser("certify", help="check a model's contraction condition on a grid",
                               description=__doc__.splitlines()[0])
     p.add_argument("model", help="model file written by 'lfd train'")
@@ -40,7 +44,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="box to check, user units; write --box=-1,1,-1,1 when it starts with a minus (default: the demos' box grown by 50%%)")
     p.add_argument("--demos", metavar="SPEC", help="take the box from these demos (grown by 50%%)")
     p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
-                   help=f"at least N grid points (default {DEFAULT_SAMPLES})")
+                   help=f"at least N grid points, at most {MAX_SAMPLES} (default {DEFAULT_SAMPLES})")
     p.add_argument("--rate", type=float, metavar="LAMBDA",
                    help=f"rate to check, 1/s (default: the model's; {IDENTITY_RATE} for a model without a metric)")
     p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE, metavar="TOL",
@@ -50,20 +54,27 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lfd.commands import check_output
+    from lfd.errors import ConfigError
+
+    if not 1 <= args.samples <= MAX_SAMPLES:
+        raise ConfigError(f"--samples must be between 1 and {MAX_SAMPLES}, got {args.samples}")
+    if args.json:
+        check_output(args.json, "--json", {"model file": args.model, "demo file": args.demos})
     from lfd.certify import BOX_GROWTH, certify
     from lfd.learners import load
     from lfd.modelfile import atomic_write
 
     if args.box is not None:
-        field = load(args.model)
+        field = load(args.model, allow_nonfinite=True)
         lo, hi = args.box
     elif args.demos is not None:
         from lfd.commands import model_and_demos
 
-        field, demos = model_and_demos(args.model, args.demos)
+        field, demos = model_and_demos(args.model, args.demos, allow_nonfinite=True)
         lo, hi = demos.bounds(BOX_GROWTH)
     else:
-        field = load(args.model)
+        field = load(args.model, allow_nonfinite=True)
         lo = hi = None
     cert = certify(field, lo, hi, samples=args.samples, rate=args.rate, tolerance=args.tolerance)
     print(cert.summary())

@@ -10,7 +10,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from typing import Any
+
+MAX_EVAL_SAMPLES = 50_000  # samples per demo: a rollout of more steps takes minutes
+LONG_EVAL_SAMPLES = 10_000  # beyond this, say on stderr that the rollout takes a while
+UNITS = ("units: the demos' length unit U (cosine_error: none, in [0, 2]); dtw is a sum over samples, "
+         "U; swept_area U^2; velocity_rmse U/s")
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -26,20 +32,33 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfd.commands import model_and_demos
-    from lfd.errors import ConfigError
-    from lfd.metrics import evaluate
+    from lfd.commands import check_output, model_and_demos
+    from lfd.errors import ConfigError, DemoError
+    from lfd.metrics import dtw_step_for, evaluate
     from lfd.modelfile import atomic_write
 
     if args.dtw_step < 1:
         raise ConfigError(f"--dtw-step must be >= 1, got {args.dtw_step}")
+    if args.json:
+        check_output(args.json, "--json", {"model file": args.model, "demo file": args.demos})
     field, demos = model_and_demos(args.model, args.demos)
-    result = evaluate(field, demos, dtw_step=args.dtw_step)
+    if demos.n_samples > MAX_EVAL_SAMPLES:
+        raise DemoError(f"{demos.name}: {demos.n_samples} samples per demo, lfd eval rolls out at most "
+                        f"{MAX_EVAL_SAMPLES}; resample the demos")
+    if demos.n_samples > LONG_EVAL_SAMPLES:
+        print(f"lfd: note: rolling out {demos.n_demos} demo(s) of {demos.n_samples} samples; this takes "
+              "a while", file=sys.stderr)
+    dtw_step = dtw_step_for(demos.n_samples, demos.n_samples, args.dtw_step)
+    if dtw_step != args.dtw_step:
+        print(f"lfd: note: DTW and Frechet on every {dtw_step}-th sample (the full "
+              f"{demos.n_samples} x {demos.n_samples} matrix is too large)", file=sys.stderr)
+    result = evaluate(field, demos, dtw_step=dtw_step)
     names = list(result["mean"])
     print(format_table(names, result["per_demo"], result["mean"]))
+    print(UNITS)
     if args.json:
         report = {"model": str(args.model), "learner": field.learner, "demos": demos.name,
-                  "dim": demos.dim, "n_demos": demos.n_demos, "dtw_step": args.dtw_step,
+                  "dim": demos.dim, "n_demos": demos.n_demos, "dtw_step": dtw_step,
                   "metrics": names, "per_demo": [_finite(r) for r in result["per_demo"]],
                   "mean": _finite(result["mean"])}
         text = json.dumps(report, indent=2, allow_nan=False) + "\n"

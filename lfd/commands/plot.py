@@ -7,9 +7,12 @@ from pathlib import Path
 from typing import Any
 
 FORMATS = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+MAX_DPI = 1000  # the figure is about 12 x 5 inches: 1000 dpi is already 60 megapixels
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    from lfd.commands import seed
+
     p = subparsers.add_parser("plot", help="plot a model's field, rollouts and loss",
                               description=__doc__.splitlines()[0])
     p.add_argument("model", help="model file written by 'lfd train'")
@@ -18,24 +21,45 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="PATH", help=f"image file ({', '.join(FORMATS)})")
     p.add_argument("--perturbed", type=int, default=8, metavar="N",
                    help="rollouts from N perturbed starts (default 8)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the perturbed starts (default 0)")
-    p.add_argument("--dpi", type=int, default=120, help="resolution (default 120)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the perturbed starts (default 0)")
+    p.add_argument("--dpi", type=int, default=120, help=f"resolution, 1 to {MAX_DPI} (default 120)")
+    p.add_argument("--obstacle", action="append", default=[], metavar="SPEC",
+                   help="avoid an obstacle (repeatable, task units): sphere:x,y[,z],r | "
+                        "box:x,y[,z],hx,hy[,hz] | capsule:x1,y1[,z1],x2,y2[,z2],r [;margin=M]")
+    goal = p.add_mutually_exclusive_group()
+    goal.add_argument("--goal-shift", metavar="T:DX,DY[,DZ]", help="move the goal by DX at time T [s]")
+    goal.add_argument("--goal-path", metavar="FILE", help="goal trajectory: CSV t,x,y[,z] or NPZ t, x")
     return p
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfd.commands import model_and_demos
+    from lfd.commands import check_output, model_and_demos
     from lfd.errors import ConfigError
     from lfd.modelfile import atomic_write
-    from lfd.plotting import field_figure
 
     out = Path(args.out)
     if out.suffix.lower() not in FORMATS:
         raise ConfigError(f"{args.out}: unknown image type '{out.suffix}' (use {', '.join(FORMATS)})")
-    if args.perturbed < 0 or args.dpi < 1:
-        raise ConfigError("--perturbed must be >= 0 and --dpi >= 1")
+    if not 0 <= args.perturbed <= 1000 or not 1 <= args.dpi <= MAX_DPI:
+        raise ConfigError(f"--perturbed must be between 0 and 1000 and --dpi between 1 and {MAX_DPI}")
+    check_output(args.out, "--out", {"model file": args.model, "demo file": args.demos})
+    from lfd import goal as moving_goal
+    from lfd.obstacles import avoid, parse_obstacle
+
+    obstacles = [parse_obstacle(text) for text in args.obstacle]
+    shift = moving_goal.parse_goal_shift(args.goal_shift) if args.goal_shift else None
+    path = moving_goal.load_goal_path(args.goal_path) if args.goal_path else None
+    from lfd.plotting import draw_obstacles, field_figure
+
     field, demos = model_and_demos(args.model, args.demos)
+    if shift is not None:
+        field = moving_goal.shift_goal(field, *shift)
+    if path is not None:
+        field = moving_goal.follow_goal_path(field, *path)
+    if obstacles:
+        field = avoid(field, obstacles)
     fig = field_figure(field, demos, n_perturbed=args.perturbed, seed=args.seed)
+    draw_obstacles(fig.axes[0], obstacles)
     fmt = out.suffix.lower().lstrip(".")
     atomic_write(out, lambda f: fig.savefig(f, format=fmt, dpi=args.dpi))
     print(f"wrote {args.out}")

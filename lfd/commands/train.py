@@ -26,6 +26,7 @@ FLAG_OPTIONS: dict[str, tuple[str, ...]] = {
     "solver": ("solver", "method"),
     "adjoint": ("adjoint",),
     "rate": ("rate",),
+    "max_condition": ("max_condition",),
 }
 _TRUE, _FALSE = {"1", "true", "yes", "on"}, {"0", "false", "no", "off"}
 
@@ -50,24 +51,41 @@ def key_value(text: str) -> tuple[str, str]:
     return key.strip(), value.strip()
 
 
+def learner_names() -> tuple[str, ...]:
+    """The registered learners, read from lfd/learners/__init__.py without importing torch."""
+    from lfd.commands import source_constant
+
+    return tuple(source_constant("lfd.learners", "_REGISTRY"))
+
+
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    from lfd.commands import seed
+
+    names = learner_names()
     p = subparsers.add_parser("train", help="fit a learner to demos and save the model",
                               description=__doc__.split("\n\n")[0].splitlines()[0])
-    p.add_argument("--learner", default="node", help="learner name: node or contraction (default node)")
+    p.add_argument("--learner", default="node", metavar="{" + ",".join(names) + "}",
+                   help=f"learner: {', '.join(names)} (default node)")
     p.add_argument("--demos", required=True, metavar="SPEC",
                    help="spiral, spiral3d, lasa:NAME or a .csv/.npz file")
     p.add_argument("--out", required=True, metavar="PATH", help="model file to write (e.g. model.pt)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    g = p.add_argument_group("learner options (left out: the learner's default)")
-    g.add_argument("--iters", type=int, help="training iterations")
-    g.add_argument("--hidden", type=hidden_sizes, metavar="W1,W2,...", help="hidden layer widths")
-    g.add_argument("--activation", help="activation function name")
-    g.add_argument("--lr", type=float, help="learning rate")
-    g.add_argument("--solver", help="ODE solver name (torchdiffeq)")
+    p.add_argument("--seed", type=seed, default=0, help="random seed, 0 to 2^63 - 1 (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (there is none unless "
+                   "stderr is a terminal)")
+    g = p.add_argument_group("learner options (left out: the learner's default; a learner "
+                             "without the option refuses it)")
+    g.add_argument("--iters", type=int, help="training iterations (node: iters, contraction: iterations)")
+    g.add_argument("--hidden", type=hidden_sizes, metavar="W1,W2,...",
+                   help="hidden layer widths (node: a list; contraction: one width)")
+    g.add_argument("--activation", help="activation function name (node)")
+    g.add_argument("--lr", type=float, help="learning rate (node)")
+    g.add_argument("--solver", help="ODE solver name, torchdiffeq (node)")
     g.add_argument("--adjoint", action=argparse.BooleanOptionalAction, default=None,
-                   help="adjoint-method gradients")
-    g.add_argument("--rate", type=float, help="contraction rate, 1/s (contraction learner)")
+                   help="adjoint-method gradients (node)")
+    g.add_argument("--rate", type=float, help="contraction rate, 1/s (contraction)")
+    g.add_argument("--max-condition", type=float, metavar="KAPPA",
+                   help="bound on b/a of the contraction metric, so the overshoot sqrt(b/a) <= sqrt(KAPPA); "
+                        "inf for none (contraction; default 100)")
     g.add_argument("--option", type=key_value, action="append", default=[], metavar="KEY=VALUE",
                    help="any other learner option, e.g. --option batch=256 (repeatable)")
     return p
@@ -127,17 +145,25 @@ def _coerce(learner: str, what: str, value: Any, default: Any) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfd.demos import load_demos
+    import sys
+    import warnings
+
+    from lfd.commands import check_output
+    from lfd.demos import demo_warnings, load_demos
     from lfd.learners import train
 
     options = learner_options(args.learner, args)
+    check_output(args.out, "--out", {"demo file": args.demos})
     demos = load_demos(args.demos)
-    field = train(args.learner, demos, seed=args.seed, progress=not args.quiet, **options)
+    for text in demo_warnings(demos):  # shown by lfd.cli as one line "lfd: warning: ..."
+        warnings.warn(text, UserWarning, stacklevel=1)
+    progress = not args.quiet and sys.stderr.isatty()  # a bar only on a terminal
+    field = train(args.learner, demos, seed=args.seed, progress=progress, **options)
+    if field.history.get("interrupted"):  # the learner stopped on Ctrl-C: never save a partial model
+        raise KeyboardInterrupt
     field.save(args.out)
     loss = field.history.get("loss") or []
     loss_text = f"final loss {loss[-1]:.4g}" if loss else "no loss recorded"
-    if field.history.get("interrupted"):
-        loss_text += " (interrupted: best model so far kept)"
     if field.history.get("stopped_nonfinite"):
         loss_text += " (stopped on a non-finite loss: best model so far kept)"
     print(f"trained {field.learner} on {demos.name} ({demos.n_demos} demos x {demos.n_samples} "

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import math
 import time
 from typing import Any
 
 import torch
 
 from lfd.demos import DemoSet
-from lfd.errors import ConfigError, ModelError
+from lfd.errors import ConfigError, ModelError, TrainingError
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
 from lfd.modelfile import load_payload
@@ -19,6 +20,7 @@ from lfd.normalization import Normalization
 _REGISTRY: dict[str, str] = {
     "node": "lfd.learners.node:NodeLearner",
     "contraction": "lfd.learners.contraction:ContractionLearner",
+    "tracking": "lfd.learners.tracking:TrackingLearner",
 }
 LEARNERS: tuple[str, ...] = tuple(_REGISTRY)
 
@@ -36,34 +38,84 @@ def normalize_demos(demos: DemoSet, norm: Normalization) -> DemoSet:
     return DemoSet(demos.t, norm.to_norm(demos.x), name=demos.name)
 
 
-def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = True,
+MAX_SEED = 2**63 - 1
+MAX_PARAMETERS = 20_000_000  # ~0.6 GB with Adam's state in float64; far beyond any demo's needs
+
+
+def parameter_count(cls: type[Learner], dim: int, config: Any) -> int | None:
+    """Parameters of ``cls.build(dim, config)``, counted on torch's meta device (nothing is
+    allocated); None for a learner whose build cannot run there."""
+    try:
+        with torch.device("meta"):
+            module = cls.build(dim, config)
+        return int(sum(p.numel() for p in module.parameters()))
+    except Exception:  # noqa: BLE001  a build that needs real data: no up-front size check
+        return None
+
+
+def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
           **options: Any) -> VelocityField:
-    """Fit a learner to demos and return its field. The same seed gives the same model."""
+    """Fit a learner to demos and return its field. The same seed gives the same model.
+
+    ``seed`` is an integer in [0, 2^63 - 1]; a model of more than MAX_PARAMETERS parameters is
+    refused before anything is allocated (ConfigError). A training that never reaches a finite
+    loss, or ends with non-finite weights, raises TrainingError. Ctrl-C stops the learner's fit
+    early: the field is returned with ``history["interrupted"]`` True, and callers must not take
+    it for a finished training (the CLI exits 130, the model cache refuses it).
+    """
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise ConfigError(f"seed must be an integer between 0 and 2^63 - 1, got {str(seed)[:40]}")
     cls = get_learner(learner)
     config = cls.make_config(**options)
+    n_params = parameter_count(cls, demos.dim, config)
+    if n_params is not None and n_params > MAX_PARAMETERS:
+        raise ConfigError(f"{learner}: the model would have {n_params:,} parameters, more than the "
+                          f"limit of {MAX_PARAMETERS:,}; use smaller layers")
     norm = Normalization.from_points(demos.x, demos.goal)
     torch.manual_seed(seed)
     module = cls.build(demos.dim, config)
     t0 = time.perf_counter()
     history = cls.fit(module, normalize_demos(demos, norm), config, progress)
+    if not history.get("interrupted"):
+        _check_trained(learner, module, history)
     lo, hi = demos.bounds()
     history = {"train_time_s": time.perf_counter() - t0, "seed": seed,
                "demo_box": [lo.tolist(), hi.tolist()], **history}
     return cls.field_class(module, norm, learner, dataclasses.asdict(config), history)
 
 
-def load(path: str) -> VelocityField:
-    """Read a model file (never executes code) and rebuild its field."""
-    payload = load_payload(path)
+def _check_trained(learner: str, module: torch.nn.Module, history: dict[str, Any]) -> None:
+    """TrainingError if no finite loss was ever reached or the weights are not finite."""
+    losses = [v for v in history.get("loss") or [] if isinstance(v, (int, float))]
+    finite = [v for v in losses if math.isfinite(v)]
+    never = (losses and not finite) or (history.get("stopped_nonfinite") and not finite)
+    if never or not all(bool(torch.isfinite(p).all()) for p in module.parameters()):
+        raise TrainingError(f"{learner}: training never reached a finite loss (the weights diverged); "
+                            "lower the learning rate or the rate, or check the demos' units")
+
+
+def load(path: str, allow_nonfinite: bool = False) -> VelocityField:
+    """Read a model file (never executes code) and rebuild its field.
+
+    Every failure, a corrupt or crafted file included, is a one-line ModelError naming ``path``;
+    so are NaN or inf weights unless ``allow_nonfinite`` (for ``lfd certify``, which reports them).
+    """
+    payload = load_payload(path, allow_nonfinite)
     try:
         cls = get_learner(str(payload["learner"]))
     except ConfigError as e:
         raise ModelError(f"{path}: {e}") from None
     try:
         config = cls.make_config(**payload["config"])
-        module = cls.build(int(payload["dim"]), config).double()
+        dim = int(payload["dim"])
+        n_params = parameter_count(cls, dim, config)
+        if n_params is not None and n_params > MAX_PARAMETERS:
+            raise ConfigError(f"{n_params} parameters, more than {MAX_PARAMETERS}")
+        module = cls.build(dim, config).double()
         module.load_state_dict(payload["state_dict"])
-    except (ConfigError, RuntimeError, KeyError, TypeError) as e:
-        raise ModelError(f"{path}: model does not match its learner '{cls.name}' ({str(e).splitlines()[0]})") from None
-    return cls.field_class(module, Normalization.from_dict(payload["normalization"]), cls.name,
-                           dataclasses.asdict(config), payload.get("history") or {})
+        return cls.field_class(module, Normalization.from_dict(payload["normalization"]), cls.name,
+                               dataclasses.asdict(config), payload.get("history") or {})
+    except Exception as e:  # noqa: BLE001  whatever a crafted config does to build: a bad file
+        text = str(e).strip()
+        reason = text.splitlines()[0][:200] if text else type(e).__name__
+        raise ModelError(f"{path}: model does not match its learner '{cls.name}' ({reason})") from None

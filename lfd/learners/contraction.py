@@ -1,13 +1,18 @@
-"""Contracting velocity fields by construction: a learned diffeomorphism of a linear contracting system.
+"""Contracting velocity fields by construction, with analytic bounds on all of R^d.
 
 A field dx/dt = f(x) contracts with rate lambda > 0 in a metric M(x), a I <= M(x) <= b I, when
 
     Eq. (C1): J_f' M + M J_f + dM/dt <= -2 lambda M   for all x,   dM/dt = sum_k (dM/dx_k) f_k,
 
-and then |dx(t)| <= sqrt(b / a) |dx(0)| exp(-lambda t) for any two neighbouring trajectories.
+the paper's Eq. (17) written with the metric's time derivative, and then, the paper's Eq. (18) with
+the metric's constant,
 
-This learner never has to check Eq. (C1): it holds for every x by construction. With a learned
-diffeomorphism phi (``lfd.learners.flows``, affine coupling layers) and a latent linear system
+    |dx(t)| <= sqrt(b / a) |dx(0)| exp(-lambda t)
+
+for any two trajectories (the geodesic distance in M shrinks like e^(-lambda t), and sqrt(a)|dx|
+<= that distance <= sqrt(b)|dx|). This learner never has to check Eq. (C1): it holds for every x
+by construction. With a learned diffeomorphism phi (``lfd.learners.flows``, an invertible ResNet
+with analytic bounds s_lo <= sigma(J_phi) <= s_hi on all of R^d) and a latent linear system
 
     Eq. (C2): dy/dt = A (y - y*),  y* = phi(0),  A = -lambda I + S - P,
               S = W - W' (skew-symmetric), P = L L' (L lower-triangular; PSD extra damping),
@@ -16,39 +21,60 @@ the field in normalised coordinates (goal at the origin) is
 
     Eq. (C3): f(x) = J_phi(x)^-1 A (phi(x) - y*),
 
-so y = phi(x) obeys Eq. (C2) exactly and a displacement dx maps to dy = J_phi dx with
-d/dt dy = A dy. In the metric M(x) = J_phi(x)' J_phi(x),
+so y = phi(x) obeys Eq. (C2) exactly, a displacement dx maps to dy = J_phi dx with d/dt dy = A dy,
+and in the metric M(x) = J_phi(x)' J_phi(x)
 
     J_f' M + M J_f + dM/dt = J_phi' (A + A') J_phi <= -2 lambda J_phi' J_phi = -2 lambda M,
 
-because sym(A) = -lambda I - P <= -lambda I. The trajectory from x0 has the closed form
+because sym(A) = -lambda I - P <= -lambda I. The metric bounds are a = s_lo^2, b = s_hi^2
+(Eq. (F4)), so the overshoot constant is sqrt(b/a) = s_hi / s_lo <= sqrt(KAPPA), the user's
+``max_condition``. The trajectory from x0 has the closed form
 
-    Eq. (C4): x(t) = phi^-1(y* + exp(A t) (phi(x0) - y*)),
+    Eq. (C4): x(t) = phi^-1(y* + exp(A t) (phi(x0) - y*)).
 
-which training uses for trajectory matching. The loss, in normalised units, is
+**Stiffness.** The field is globally Lipschitz (``lipschitz_bound``): with u = phi(x) - y*,
+J_f = J_phi^-1 A J_phi - J_phi^-1 (D J_phi) J_phi^-1 A u, |u| <= s_hi |x| and |D J_phi| bounded by
+the curvature bound Eq. (F5) (which decays like a Gaussian away from the window),
+
+    Eq. (C6): Lip(f) <= |A| s_hi / s_lo + |A| (s_hi / s_lo^2) sum_k P_k sup_r K_k(r) (r + |c_k| + D_k),
+
+with K_k the curvature bound of layer k at distance r from its centre c_k (Eq. (F5)),
+P_k = prod_{j>k} sigma_max,j prod_{j<k} sigma_max,j^2 and D_k the drift of the layers before it
+(|x| <= r + |c_k| + D_k); each 1-D sup is taken on a grid with interval-wise upper bounds
+(``lipschitz_bound``).
+
+**Training.** In normalised units the loss is
 
     Eq. (C5): L = mean_i |f(x_i) - xd_i|^2 / mean |xd|^2
-                  + w_x mean_{n,k} |x_n(t_k) - x_demo,n(t_k)|^2 / mean |x_demo|^2
-                  + w_D mean_j D(J_phi(z_j)),
+                  + w_x mean_{n,k} |phi(x_demo,n(t_k)) - y_n(t_k)|^2 / mean |phi(x_demo) - y*|^2,
 
-with x_n(t) of Eq. (C4) started at demo n's first sample, t_k at ``traj_points`` samples of the
-demo and at T_n (1 + r), r in ``REST_TIMES``, where the target is the goal (a demo rests there
-after its last sample; this stops fits that sweep past the goal and loop back), and
+with y_n(t) = y* + exp(A t)(phi(x_demo,n(0)) - y*) (trajectory matching in the latent space, where
+Eq. (C4) is linear; the distance there is within [s_lo, s_hi] of the distance in x), t_k at
+``traj_points`` samples of each demo and at T_n (1 + r), r in ``REST_TIMES``, where the target is
+the goal. L is minimised by full-batch L-BFGS.
 
-    Eq. (C6): D(J) = |J|_F^2 / |det J|^(2/d) - d >= 0,
-
-the conformal distortion of phi (zero iff J is a scaled rotation; for d = 2 it is
-s1/s2 + s2/s1 - 2 in the singular values), at points z_j drawn uniformly from the demos' box
-grown to 3x its size. It keeps the metric well conditioned, i.e. b/a and the overshoot factor
-sqrt(b/a) of Eq. (C1) small, at a small cost in accuracy. L is minimised by full-batch L-BFGS.
+**Feasibility.** A demo that starts at x(0) and is at x(t) at time t can only be followed if
+|x(t)| e^(lambda t) / |x(0)| <= sqrt(KAPPA); ``feasible_rate`` gives the largest such lambda, and
+training warns (``RateFeasibilityWarning``) when the requested rate is above it.
 
 Units: x_n = (x - goal) / s is an isotropic scaling and time is not rescaled, so lambda is the
-same in user time (1/s), and the metric in user units is M(x) = M_n(x_n) / s^2 (``metric``).
+same in user time (1/s), the metric in user units is M(x) = M_n(x_n) / s^2 (``metric``,
+``metric_bounds``) and b/a and Lip(f) are unit-free.
+
+References
+----------
+Lohmiller, W., Slotine, J.-J. E. (1998). On contraction analysis for non-linear systems.
+Automatica 34(6), 683-696. doi:10.1016/S0005-1098(98)00019-3
+Rana, M. A., Li, A., Fox, D., Boots, B., Ramos, F., Ratliff, N. (2020). Euclideanizing flows:
+diffeomorphic reduction for learning stable dynamical systems. L4DC. arXiv:2005.13143
+Behrmann, J., Grathwohl, W., Chen, R. T. Q., Duvenaud, D., Jacobsen, J.-H. (2019). Invertible
+residual networks. ICML. arXiv:1811.00995
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
 
@@ -60,18 +86,31 @@ from tqdm.auto import tqdm
 from lfd.demos import DemoSet
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
-from lfd.learners.flows import CouplingFlow, coupling_flow_numpy
+from lfd.learners.flows import BoundedFlow, bounded_flow_numpy
 
 DEFAULT_RATE = 0.5             # 1/s: below the ~1/s decay of 3-5 s demos, so it leaves room to fit them
+DEFAULT_MAX_CONDITION = 100.0  # b/a <= 100: the overshoot constant sqrt(b/a) is at most 10
 REST_TIMES = (0.1, 0.25, 0.5, 1.0)  # Eq. (C5): at T (1 + r) a demo rests at its goal (the origin)
-DISTORTION_POINTS = 256       # Eq. (C6): points z_j per fit ...
-DISTORTION_BOX_GROWTH = 2.0   # ... drawn from the demos' box grown by 200% (3x its size)
 
 
-def distortion(jac: torch.Tensor) -> torch.Tensor:
-    """Eq. (C6): D(J) = |J|_F^2 / |det J|^(2/d) - d, shape (B,), for J : tensor, shape (B, d, d)."""
-    d = jac.shape[-1]
-    return (jac * jac).sum((-2, -1)) / torch.linalg.det(jac).abs() ** (2.0 / d) - d
+class RateFeasibilityWarning(UserWarning):
+    """The demos cannot be followed at the requested rate within the condition bound."""
+
+
+def feasible_rate(x: np.ndarray, t: np.ndarray, max_condition: float) -> float:
+    """The largest lambda with |x_n(t)| e^(lambda t) <= sqrt(KAPPA) |x_n(0)| for every demo n.
+
+    x : array, shape (N, T, d), relative to the goal; t : array, shape (N, T).
+    Returns inf when every rate is feasible and 0 (or less) when none is.
+    """
+    if math.isinf(max_condition):
+        return math.inf
+    r = np.linalg.norm(x, axis=-1)                                     # (N, T)
+    dt = t - t[:, :1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cap = np.log(math.sqrt(max_condition) * r[:, :1] / r) / dt
+    cap = np.where((dt > 0) & (r > 0), cap, np.inf)
+    return float(cap.min())
 
 
 @dataclass
@@ -79,41 +118,44 @@ class ContractionConfig:
     """Options of the contraction learner.
 
     rate : lambda of Eqs. (C1)-(C2), 1/s, > 0 (the guaranteed contraction rate)
-    layers, features, length_scale, window, log_scale_bound : the coupling flow phi
-        (``lfd.learners.flows``; window 0: none), in normalised units
+    max_condition : KAPPA >= 1, the bound on b/a of the metric (inf: per-block budget 0.97)
+    layers, hidden, window, length_scale : the flow phi (``lfd.learners.flows``), normalised units
     damping : learn the extra damping P of Eq. (C2) (else P = 0 and sym(A) = -lambda I)
     iterations : loss evaluations of L-BFGS; batch : velocity points (a fixed seeded subsample)
     traj_weight, traj_points : w_x of Eq. (C5) and the samples per demo it compares (0 disables)
-    distortion_weight : w_D of Eq. (C5), the weight of the conformal distortion Eq. (C6) (0 disables)
     """
 
     rate: float = DEFAULT_RATE
-    layers: int = 6
-    features: int = 32
-    length_scale: float = 0.45
-    log_scale_bound: float = 2.0
+    max_condition: float = DEFAULT_MAX_CONDITION
+    layers: int = 4
+    hidden: int = 32
+    window: float = 1.5
+    length_scale: float = 0.5
     damping: bool = True
     iterations: int = 200
     batch: int = 1000
     traj_weight: float = 10.0
     traj_points: int = 25
-    distortion_weight: float = 0.01
-    window: float = 1.5
 
     def __post_init__(self) -> None:
-        for name in ("rate", "length_scale", "log_scale_bound", "traj_weight", "distortion_weight", "window"):
+        for name in ("rate", "window", "length_scale", "traj_weight"):
             v = getattr(self, name)
-            may_be_zero = name.endswith("_weight") or name == "window"
+            may_be_zero = name == "traj_weight"
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0 or (v == 0 and not may_be_zero):
+                    or v < 0 or (v == 0 and not may_be_zero) or v > 1e6:
                 raise ValueError(f"{name} must be a {'non-negative' if may_be_zero else 'positive'} "
-                                 f"number, got {v!r}")
+                                 f"number below 1e6, got {v!r}")
             setattr(self, name, float(v))
-        for name in ("layers", "features", "iterations", "batch", "traj_points"):
+        v = self.max_condition
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v <= 1:
+            raise ValueError(f"max_condition must be a number > 1 (or inf), got {v!r}")
+        self.max_condition = float(v)
+        for name, high in (("layers", 64), ("hidden", 4096), ("iterations", 10**6), ("batch", 10**6),
+                           ("traj_points", 10**4)):
             v = getattr(self, name)
             low = 0 if name == "iterations" else 1
-            if isinstance(v, bool) or not isinstance(v, int) or v < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+                raise ValueError(f"{name} must be an integer from {low} to {high}, got {v!r}")
         if not isinstance(self.damping, bool):
             raise ValueError(f"damping must be true or false, got {self.damping!r}")
 
@@ -125,8 +167,8 @@ class ContractionModule(nn.Module):
         super().__init__()
         self.dim = dim
         self.rate = config.rate
-        self.flow = CouplingFlow(dim, config.layers, config.features, config.length_scale,
-                                 config.log_scale_bound, config.window)
+        self.flow = BoundedFlow(dim, config.layers, config.hidden, config.window, config.max_condition,
+                                config.length_scale)
         self.skew = nn.Parameter(torch.zeros(dim, dim))
         self.damping = nn.Parameter(0.3 * torch.eye(dim)) if config.damping else None
 
@@ -174,23 +216,56 @@ class ContractionModule(nn.Module):
         return jac.transpose(-1, -2) @ jac
 
     def latent_trajectory(self, y0: torch.Tensor, y_star: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        """Eq. (C4) mapped back: x at times t, shape (N, K), from latent starts y0, shape (N, d): (N, K, d)."""
+        """y(t) of Eq. (C2) from latent starts y0, shape (N, d), at times t, shape (N, K): (N, K, d)."""
         at = self.latent_matrix() * t.reshape(-1, 1, 1)                             # (N K, d, d)
         e = torch.linalg.matrix_exp(at).reshape(*t.shape, self.dim, self.dim)      # (N, K, d, d)
-        yt = y_star + (e @ (y0 - y_star)[:, None, :, None]).squeeze(-1)             # (N, K, d)
-        return self.flow.inverse(yt.reshape(-1, self.dim)).reshape(yt.shape)
+        return y_star + (e @ (y0 - y_star)[:, None, :, None]).squeeze(-1)          # (N, K, d)
 
+    @torch.no_grad()
     def trajectory(self, x0: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """Eq. (C4): the exact solutions from x0, shape (N, d), at times t, shape (N, K): (N, K, d)."""
         y = self.flow(torch.cat([x0, x0.new_zeros(1, self.dim)]))
-        return self.latent_trajectory(y[:-1], y[-1:], t)
+        yt = self.latent_trajectory(y[:-1], y[-1:], t)
+        return self.flow.inverse(yt.reshape(-1, self.dim)).reshape(yt.shape)
+
+
+def lipschitz_bound(module: ContractionModule, grid: int = 4000) -> float:
+    """An upper bound of Lip(f_n) over all of R^d, Eq. (C6), 1/s.
+
+    With r_k = |x_{k-1} - c_k| the distance of layer k's input from its centre, |D J_phi(x)| <=
+    sum_k P_k K_k(r_k) and |x| <= r_k + |c_k| + D_k (D_k = sum_{j<k} drift_j), so
+
+        sup_x |D J_phi(x)| |x| <= sum_k P_k sup_r K_k(r) (r + |c_k| + D_k),
+
+    each a 1-D sup over r >= 0 taken on ``grid`` intervals of [0, 12 w] (w the layer's widest
+    Gaussian), each interval bounded from above by ``LayerBound.curvature``; beyond 12 w the Gaussian
+    is below e^-72 and the term decays. Returns inf for non-finite parameters.
+    """
+    if not all(bool(torch.isfinite(p).all()) for p in module.parameters()):
+        return math.inf
+    layers = module.flow.bounds()
+    with torch.no_grad():
+        a_norm = float(torch.linalg.matrix_norm(module.latent_matrix(), ord=2)) * (1 + 1e-12)
+    hi_s = np.array([layer.sigma_hi for layer in layers])
+    s_lo = float(np.prod([layer.sigma_lo for layer in layers]))
+    s_hi = float(np.prod(hi_s))
+    drift = np.cumsum([0.0] + [layer.drift for layer in layers])[:-1]              # D_k
+    second = 0.0
+    for k, layer in enumerate(layers):
+        p_k = np.prod(hi_s[k + 1:]) * np.prod(hi_s[:k]) ** 2                     # |J_after| |J_before|^2
+        offset = float(np.linalg.norm(layer.center)) + drift[k]
+        width = float(np.max(layer.params["rho"])) if layer.kind == "swirl" else module.flow.window
+        edges = np.linspace(0.0, 12.0 * width, grid + 1)
+        lo, hi = edges[:-1], edges[1:]
+        second += p_k * float((layer.curvature(lo, hi) * (hi + offset)).max())
+    return a_norm * s_hi / s_lo + a_norm * s_hi / s_lo ** 2 * second
 
 
 class ContractionField(VelocityField):
-    """A field contracting by construction (Eq. (C1)), with its metric and rate.
+    """A field contracting by construction (Eq. (C1)), with its metric, rate and analytic bounds.
 
-    ``rate`` is lambda in 1/s; ``metric(x)`` is M(x) in user units; ``point_fn()`` is a numpy
-    single-point evaluator that agrees with the torch path to 1e-10.
+    ``rate`` is lambda in 1/s; ``metric(x)`` is M(x) in user units; ``metric_bounds`` (a, b) bound
+    M on all of R^d; ``condition_bound`` = b/a and ``lipschitz_bound`` (1/s) are analytic.
     """
 
     module: ContractionModule
@@ -205,6 +280,24 @@ class ContractionField(VelocityField):
         """A of Eq. (C2), shape (d, d); -max eig sym(A) >= rate is the rate actually built in."""
         with torch.no_grad():
             return self.module.latent_matrix().numpy().copy()
+
+    @property
+    def metric_bounds(self) -> tuple[float, float]:
+        """(a, b) with a I <= M(x) <= b I for every x in R^d, user units (Eq. (F4))."""
+        s_lo, s_hi = self.module.flow.singular_value_bounds()
+        s2 = self.norm.scale ** 2
+        return s_lo ** 2 / s2, s_hi ** 2 / s2
+
+    @property
+    def condition_bound(self) -> float:
+        """b/a, analytic, <= ``max_condition``; sqrt(b/a) is the overshoot constant of Eq. (C1)."""
+        a, b = self.metric_bounds
+        return b / a
+
+    @property
+    def lipschitz_bound(self) -> float:
+        """An upper bound of the field's Lipschitz constant on all of R^d, 1/s (Eq. (C6))."""
+        return lipschitz_bound(self.module)
 
     def metric_normalized_torch(self, xn: torch.Tensor) -> torch.Tensor:
         """M_n(x_n) = J_phi' J_phi, shape (B, d, d); differentiable (used by ``lfd.certify``)."""
@@ -227,35 +320,29 @@ class ContractionField(VelocityField):
         """
         x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
         tt = torch.from_numpy(np.broadcast_to(np.asarray(t, dtype=np.float64) - t[0], (len(x0), len(t))).copy())
-        with torch.no_grad():
-            xn = self.module.trajectory(torch.from_numpy(self.norm.to_norm(x0)), tt).numpy()
+        xn = self.module.trajectory(torch.from_numpy(self.norm.to_norm(x0)), tt).numpy()
         return self.norm.from_norm(xn)
 
     def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
-        """Eq. (C3) for one point: phi and J_phi by ``coupling_flow_numpy``, then a d x d solve
-        (Cramer's rule for d = 2)."""
+        """Eq. (C3) for one point: phi, J_phi and the d x d solve in one compiled call
+        (``lfd.learners.flow_kernel``, ~2 us); the numpy twin is ``bounded_flow_numpy``."""
+        from lfd.learners.flow_kernel import contraction_point_fn
+
+        params = self.module.flow.numpy_params()
+        y_star, _ = bounded_flow_numpy(params, np.zeros(self.dim))
+        return contraction_point_fn(params, self.latent_matrix, y_star)
+
+    def numpy_point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The same as ``_point_fn_normalized`` in plain numpy (no compilation), normalised units."""
         params = self.module.flow.numpy_params()
         a = self.latent_matrix
-        y_star, _ = coupling_flow_numpy(params, [0.0] * self.dim)
-        if self.dim == 2:
-            a00, a01, a10, a11 = (float(v) for v in a.ravel())
-            s0, s1 = y_star
+        y_star, _ = bounded_flow_numpy(params, np.zeros(self.dim))
 
-            def f2(xn: np.ndarray) -> np.ndarray:
-                (y0, y1), ((j00, j01), (j10, j11)) = coupling_flow_numpy(params, xn)
-                e0, e1 = y0 - s0, y1 - s1
-                v0, v1 = a00 * e0 + a01 * e1, a10 * e0 + a11 * e1
-                det = j00 * j11 - j01 * j10
-                return np.array([(j11 * v0 - j01 * v1) / det, (j00 * v1 - j10 * v0) / det])
+        def f(xn: np.ndarray) -> np.ndarray:
+            y, j = bounded_flow_numpy(params, xn)
+            return np.linalg.solve(j, a @ (y - y_star))
 
-            return f2
-        ys = np.asarray(y_star)
-
-        def fd(xn: np.ndarray) -> np.ndarray:
-            y, j = coupling_flow_numpy(params, xn)
-            return np.linalg.solve(np.asarray(j), a @ (np.asarray(y) - ys))
-
-        return fd
+        return f
 
 
 class _NonFinite(Exception):
@@ -279,17 +366,28 @@ class ContractionLearner(Learner):
             progress: bool) -> dict[str, Any]:
         """Minimise Eq. (C5) by L-BFGS on normalised demos; Ctrl-C keeps the best module so far.
 
-        Runs single-threaded (the tensors are small: one thread is as fast and immune to
-        oversubscription). Returns ``loss`` (per evaluation), ``best_loss``, ``iterations``,
-        ``interrupted`` and ``stopped_nonfinite`` (``lfd.train`` adds the demos' box).
+        Runs single-threaded (the tensors are small: one thread is as fast, immune to
+        oversubscription and gives the same floats every run). Returns ``loss`` (per evaluation),
+        ``best_loss``, ``iterations``, ``interrupted``, ``stopped_nonfinite`` and
+        ``feasible_rate`` (warns with ``RateFeasibilityWarning`` when the rate is above it).
         """
         assert isinstance(module, ContractionModule)
+        lam_max = feasible_rate(demos.x, demos.t, config.max_condition)
+        if config.rate > lam_max:
+            warnings.warn(
+                f"rate {config.rate:g}/s is not feasible for these demos within max_condition "
+                f"{config.max_condition:g} (sqrt = {math.sqrt(config.max_condition):.3g}): the largest feasible rate is "
+                + (f"{lam_max:.3g}/s" if lam_max > 0 else "none (a demo moves away from the goal by more than "
+                   "sqrt(max_condition)); raise max_condition")
+                + "; the fit will be poor", RateFeasibilityWarning, stacklevel=3)
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
-            return cls._fit(module, demos, config, progress)
+            history = cls._fit(module, demos, config, progress)
         finally:
             torch.set_num_threads(threads)
+        history["feasible_rate"] = lam_max if math.isfinite(lam_max) else None
+        return history
 
     @classmethod
     def _fit(cls, module: ContractionModule, demos: DemoSet, config: ContractionConfig,
@@ -310,13 +408,10 @@ class ContractionLearner(Learner):
         t_rel = demos.t[:, k_idx] - demos.t[:, :1]
         tk = tensor(np.concatenate([t_rel, t_rel[:, -1:] * (1.0 + np.asarray(REST_TIMES))], axis=1))
         xk = tensor(np.concatenate([demos.x[:, k_idx], np.zeros((n0, len(REST_TIMES), d))], axis=1))
-        x_scale = float((xk * xk).sum(-1).mean())
-        # distortion: points drawn from the grown box
-        lo, hi = (tensor(b) for b in demos.bounds(DISTORTION_BOX_GROWTH))
-        z = lo + (hi - lo) * torch.rand(DISTORTION_POINTS, d, dtype=dtype)
-        # one pass of phi and J_phi serves all three terms: rows [x | demo starts | z]
+        nk = xk.shape[1]
+        # one pass of phi and J_phi serves both terms: rows [x | demo starts | trajectory targets]
         nv = len(x)
-        x_in = torch.cat([x, tensor(demos.x[:, 0]), z])
+        x_in = torch.cat([x, tensor(demos.x[:, 0]), xk.reshape(-1, d)])
 
         module.train()
         module.init_latent_from_data(x_all, v_all)
@@ -330,14 +425,14 @@ class ContractionLearner(Learner):
 
         def closure() -> torch.Tensor:
             opt.zero_grad()
-            f, y, y_star, jac = module.velocity_and_latent(x_in)
+            f, y, y_star, _ = module.velocity_and_latent(x_in)
             err_v = f[:nv] - v
             loss = (err_v * err_v).sum(1).mean() / v_scale
             if config.traj_weight > 0:
-                err_x = module.latent_trajectory(y[nv:nv + n0], y_star, tk) - xk
-                loss = loss + config.traj_weight * (err_x * err_x).sum(-1).mean() / x_scale
-            if config.distortion_weight > 0:
-                loss = loss + config.distortion_weight * distortion(jac[nv + n0:]).mean()
+                target = y[nv + n0:].reshape(n0, nk, d)                      # phi(x_demo(t_k))
+                err_y = module.latent_trajectory(y[nv:nv + n0], y_star, tk) - target
+                y_scale = ((target - y_star) ** 2).sum(-1).mean()         # scale-free: phi cannot shrink the error away
+                loss = loss + config.traj_weight * (err_y * err_y).sum(-1).mean() / y_scale
             value = float(loss.detach())
             if not math.isfinite(value):
                 raise _NonFinite

@@ -1,197 +1,328 @@
-"""A smooth diffeomorphism phi : R^d -> R^d built from affine coupling layers (RealNVP style).
+"""A globally bi-Lipschitz diffeomorphism phi : R^d -> R^d with analytic bounds.
 
-Layer k transforms one coordinate u = k mod d conditioned on the others, c:
+phi alternates two kinds of layers, each a bijection of R^d with a Jacobian whose singular values
+are bounded on ALL of R^d by constants computed from its parameters:
 
-    Eq. (F1): y_u = x_u exp(s_k(x_c)) + t_k(x_c),   y_c = x_c,
-    Eq. (F2): s_k = beta tanh(r_k / beta)            (bounded log-scale, |s_k| < beta),
-    Eq. (F3): (r_k, t_k) = e(x_c) W_k [cos(Omega_k x_c); sin(Omega_k x_c)] / sqrt(H) + b_k,
-              e(x_c) = exp(-|x_c|^2 / (2 R^2))   (R = ``window``; e = 1 without one),
+**Swirls** (rotation is cheap). Around a centre c, rotate by an angle that decays with the distance,
 
-a linear read-out of H random Fourier features with fixed frequencies Omega_k ~ N(0, 1/l^2),
-shape (H, d-1), as in Euclideanizing flows (Rana et al., 2020), under a Gaussian window: far
-from the data (|x_c| >> R) each layer tends to a fixed affine map, so phi does not keep folding
-space where there is nothing to fit (without the window the periodic features make J_phi grow
-without bound, and the field stiff, away from the data). W_k starts at zero, so a fresh flow is
-the identity. Each layer is a bijection of R^d with the inverse
+    Eq. (F1): y = c + R(theta(r)) (x - c),   r = |x - c|,   theta(r) = sum_j Theta_j exp(-r^2 / (2 rho_j^2)),
 
-    Eq. (F4): x_u = (y_u - t_k(y_c)) exp(-s_k(y_c)),
+(R(theta) the planar rotation for d = 2, the rotation about a learned unit axis a for d = 3). Then
+J = R(theta) (I + theta'(r) r (K u) u'), u = (x - c)/r, K u = J90 u (d = 2) or a x u (d = 3),
+with K u orthogonal to u and |K u| <= 1: a rotation times a shear of slope at most
+m = sup_r r |theta'(r)| <= (2/e) sum_j |Theta_j|. A shear I + m v u' (v orthogonal to u) has
+singular values sigma_max = (m + sqrt(m^2 + 4)) / 2 and 1/sigma_max, so
 
-and a Jacobian that differs from the identity in row u only,
+    Eq. (F2): sigma(J_swirl(x)) in [1/sigma_max(m), sigma_max(m)]   for every x,
 
-    Eq. (F5): dy_u/dx = exp(s_k) e_u' + (x_u exp(s_k) ds_k/dx_c + dt_k/dx_c) E_c,
+and |y - c| = r, so the inverse is x = c + R(-theta(|y - c|)) (y - c), in closed form.
 
-so J_phi = J_K ... J_1 is invertible everywhere (det J_phi = exp(sum_k s_k) > 0), and J_phi and
-its inverse are bounded on every bounded set. The feature derivatives are analytic,
-d/dx_c [cos z; sin z] = [-sin z; cos z] Omega_k and de/dx_c = -e x_c / R^2, so (r, t) and their
-derivatives come out of one matrix product. The flow carries J_phi forward (no autograd needed), so the same code serves
-training, the certificate (where torch.func differentiates it once more) and, in numpy, the
-single-point control-loop path. The K layers' weights are stacked in one tensor so that the
-per-step work that does not depend on x is a handful of tensor operations, not K of them.
+**Residual blocks** (local stretch). An invertible ResNet block with a Gaussian window,
+
+    Eq. (F3): y = x + g(x),   g(x) = e(x) W2 tanh(W1 x + b1),   e(x) = exp(-|x|^2 / (2 R^2)).
+
+With H1 = min(|W1|_2 |W2|_2, sum_j |W2[:, j]| |W1[j]|) >= |grad(W2 tanh(W1 x + b1))| and
+h0 = |W2 tanh(b1)|, Lip(g) <= 2 e^(-1/2) H1 + e^(-1/2) h0 / R =: B; a block whose residual is
+Lipschitz with c < 1 is a bijection (Banach: x = lim y - g(x_i)) with singular values in
+[1 - c, 1 + c].
+
+**The budget.** The user's KAPPA bounds b/a = (s_hi / s_lo)^2 with s_hi = prod sigma_max and
+s_lo = prod sigma_min over the layers (Eq. (F4)), i.e. sum over layers of the log-condition
+beta_k = log(sigma_max / sigma_min) <= log sqrt(KAPPA). The split beta_k = softmax(w)_k log sqrt(KAPPA)
+is learned; a swirl with budget beta_k gets the slope m_k = 2 sinh(beta_k / 2) (sigma_max / sigma_min
+= sigma_max^2 = e^beta), a block c_k = tanh(beta_k / 2) ((1 + c)/(1 - c) = e^beta). Each layer's raw strength S (the
+swirl's (2/e) sum |Theta_j|, the block's B) is scaled by the smooth saturation
+alpha = cap tanh(S / cap) / S, so the layer's bound is below its cap for every parameter value:
+
+    Eq. (F4): s_lo = prod_k sigma_min,k <= sigma(J_phi(x)) <= prod_k sigma_max,k = s_hi   for all x,
+
+and b/a = (s_hi / s_lo)^2 < KAPPA by construction.
+
+**Curvature** (for the field's Lipschitz bound, ``lfd.learners.contraction``): each layer bounds
+|D J_k(x)| by a function of the distance of its input from its centre that decays like a Gaussian
+(``LayerBound.curvature``), and moves points by at most ``drift``.
+
+References
+----------
+Behrmann, Grathwohl, Chen, Duvenaud, Jacobsen (2019). Invertible residual networks. ICML. arXiv:1811.00995
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from torch import nn
 
-# The conditioning coordinates c = {0..d-1} \ {u} as a slice (a view, no copy), for d in {2, 3}.
-_COND_SLICES: dict[tuple[int, int], slice] = {
-    (2, 0): slice(1, 2), (2, 1): slice(0, 1),
-    (3, 0): slice(1, 3), (3, 1): slice(0, 3, 2), (3, 2): slice(0, 2),
-}
+_E_HALF = math.exp(-0.5)
+TANH2_MAX = 4.0 / (3.0 * math.sqrt(3.0))   # max |tanh''|
+_EPS = 1e-24                               # inside square roots: keeps gradients finite at 0
+_REL = 1e-12                               # relative margin on computed norms (float64 round-off)
+MAX_BLOCK_LIP = 0.97                       # a residual block's cap: the fixed-point inverse still converges
+SWIRL_COMPONENTS = 4
+RHO_MIN, RHO_MAX = 0.1, 3.0                # swirl widths (normalised units): bounded curvature, bounded reach
 
 
-class CouplingFlow(nn.Module):
-    """phi = layer_K o ... o layer_1, a diffeomorphism of R^d (Eqs. (F1)-(F5)).
+def shear_sigma_max(m: float | np.ndarray) -> float | np.ndarray:
+    """sigma_max of I + m v u' (u, v orthonormal): (m + sqrt(m^2 + 4)) / 2."""
+    return (m + np.sqrt(m * m + 4.0)) / 2.0
 
-    dim : d in {2, 3}; layers : K; features : H; length_scale : l and window : R of Eq. (F3)
-    (0: no window); log_scale_bound : beta of Eq. (F2). The frequencies are drawn from torch's global
-    generator (seed it first) and saved with the weights.
+
+@dataclass(frozen=True)
+class LayerBound:
+    """Analytic constants of one layer, normalised units.
+
+    kind : "swirl" or "residual"; sigma_lo, sigma_hi : singular-value bounds of its Jacobian;
+    center : its centre (the window's centre is the origin); drift : sup |y - x|;
+    params : what ``curvature`` needs.
     """
 
-    def __init__(self, dim: int, layers: int, features: int, length_scale: float,
-                 log_scale_bound: float, window: float = 0.0) -> None:
+    kind: str
+    sigma_lo: float
+    sigma_hi: float
+    center: np.ndarray
+    drift: float
+    params: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def curvature(self, r_lo: np.ndarray, r_hi: np.ndarray) -> np.ndarray:
+        """An upper bound of |D J_k| at distance r in [r_lo, r_hi] from the centre, shape (n,).
+
+        Every bound is e(r) * poly(r) with e decreasing and poly increasing (non-negative
+        coefficients), so e(r_lo) poly(r_hi) bounds the whole interval.
+        """
+        r_lo, r_hi = np.maximum(r_lo, 0.0), np.maximum(r_hi, 0.0)
+        p = self.params
+        if self.kind == "residual":
+            big_r2 = float(p["window"]) ** 2
+            h0, h1, h2 = float(p["h0"]), float(p["h1"]), float(p["h2"])
+            env = np.exp(-0.5 * r_lo ** 2 / big_r2)
+            return env * (h2 + 2 * h1 * r_hi / big_r2 + (h0 + h1 * r_hi) * (1 / big_r2 + r_hi ** 2 / big_r2 ** 2))
+        theta, rho = np.abs(p["theta"]), p["rho"]                     # (J,)
+        q_sup = float((theta / rho ** 2).sum())                         # sup |theta'(r) / r|
+        env = np.exp(-0.5 * r_lo[:, None] ** 2 / rho ** 2)              # (n, J)
+        rh = r_hi[:, None]
+        # |DJ| <= |theta'| (1 + |q| r^2) + |q'| r^2 + 2 |q| r, q = theta'/r (Eq. (F1) differentiated)
+        poly = (rh / rho ** 2) * (1 + q_sup * rh ** 2) + rh ** 3 / rho ** 4 + 2 * rh / rho ** 2
+        return (theta * env * poly).sum(1)
+
+
+class BoundedFlow(nn.Module):
+    """phi of Eqs. (F1)-(F4): ``layers`` pairs (swirl, residual block), budget log sqrt(KAPPA).
+
+    dim : d in {2, 3}; hidden : H of a block; window : R; max_condition : KAPPA (inf allowed:
+    each layer then gets its own cap, MAX_BLOCK_LIP for blocks and slope 20 for swirls).
+    A fresh flow is the identity (Theta = 0, W2 = 0). Draws from torch's global generator.
+    """
+
+    def __init__(self, dim: int, layers: int, hidden: int, window: float, max_condition: float,
+                 length_scale: float = 0.5) -> None:
         super().__init__()
         if dim not in (2, 3):
-            raise ValueError(f"the coupling flow supports d = 2 or 3, got {dim}")
-        self.dim, self.n_layers, self.features = dim, layers, features
-        self.beta = float(log_scale_bound)
+            raise ValueError(f"the flow supports d = 2 or 3, got {dim}")
+        self.dim, self.n_pairs, self.hidden = dim, layers, hidden
         self.window = float(window)
-        self.feature_scale = float(1.0 / np.sqrt(features))
-        self.register_buffer("omega", torch.randn(layers, features, dim - 1) / length_scale)
-        self.weight = nn.Parameter(torch.zeros(layers, 2, 2 * features))
-        self.bias = nn.Parameter(torch.zeros(layers, 2))
-        self.register_buffer("masks", torch.eye(dim, dtype=torch.bool)[[k % dim for k in range(layers)]],
-                             persistent=False)
+        self.log_budget = 0.5 * math.log(max_condition) if math.isfinite(max_condition) else math.inf
+        # swirls
+        self.center = nn.Parameter(0.6 * (torch.rand(layers, dim) - 0.5))
+        self.theta = nn.Parameter(torch.zeros(layers, SWIRL_COMPONENTS))
+        init = (torch.tensor([0.2, 0.4, 0.8, 1.6]) - RHO_MIN) / (RHO_MAX - RHO_MIN)
+        self.rho_logit = nn.Parameter(torch.logit(init).repeat(layers, 1))
+        self.axis = nn.Parameter(torch.randn(layers, 3)) if dim == 3 else None
+        # residual blocks
+        self.w1 = nn.Parameter(torch.randn(layers, hidden, dim) / length_scale)
+        self.b1 = nn.Parameter(4.0 * torch.rand(layers, hidden) - 2.0)
+        self.w2 = nn.Parameter(torch.zeros(layers, dim, hidden))
+        # the learned split of the budget over the 2L layers
+        self.split = nn.Parameter(torch.zeros(2 * layers))
 
-    def _u_c(self, k: int) -> tuple[int, slice]:
-        u = k % self.dim
-        return u, _COND_SLICES[(self.dim, u)]
+    # ---- the budget and the scaled parameters
+    def caps(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(swirl slope caps m_k (L,), block Lipschitz caps c_k (L,)) from the budget split."""
+        if math.isinf(self.log_budget):
+            l = self.n_pairs
+            return self.split.new_full((l,), 20.0), self.split.new_full((l,), MAX_BLOCK_LIP)
+        beta = torch.softmax(self.split, 0) * self.log_budget
+        return 2 * torch.sinh(beta[0::2] / 2), torch.tanh(beta[1::2] / 2).clamp_max(MAX_BLOCK_LIP)
 
-    def readout(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Every layer's stacked read-out [W; dW/dx_c], shape (K, 2 + 2(d-1), 2H), and bias, (K, 2 + 2(d-1)).
+    def scaled(self) -> dict[str, torch.Tensor]:
+        """The effective parameters and per-layer bounds of Eqs. (F2)-(F4)."""
+        m_cap, c_cap = self.caps()
+        # swirls: raw slope S = (2/e) sum |Theta_j| (smooth |.|), scaled below its cap
+        abs_theta = torch.sqrt(self.theta ** 2 + _EPS)
+        s = (2 / math.e) * abs_theta.sum(1) * (1 + _REL)
+        m = m_cap * torch.tanh(s / m_cap)
+        theta = self.theta * (m / s)[:, None]
+        # blocks: raw Lipschitz B of Eq. (F3), scaled below its cap
+        w1, w2 = self.w1, self.w2
+        n1 = torch.sqrt(torch.linalg.eigvalsh(w1.transpose(1, 2) @ w1)[:, -1].clamp_min(0) + _EPS) * (1 + _REL)
+        n2 = torch.sqrt(torch.linalg.eigvalsh(w2 @ w2.transpose(1, 2))[:, -1].clamp_min(0) + _EPS) * (1 + _REL)
+        col = torch.sqrt((w2 * w2).sum(1) + _EPS) * torch.sqrt((w1 * w1).sum(2) + _EPS)
+        h1 = torch.minimum(n1 * n2, col.sum(1) * (1 + _REL))
+        h0 = torch.sqrt(((w2 @ torch.tanh(self.b1).unsqueeze(-1)).squeeze(-1) ** 2).sum(-1) + _EPS) * (1 + _REL)
+        big_b = 2 * _E_HALF * h1 + _E_HALF * h0 / self.window
+        c = c_cap * torch.tanh(big_b / c_cap)
+        alpha = c / big_b
+        out = {"theta": theta, "rho": RHO_MIN + (RHO_MAX - RHO_MIN) * torch.sigmoid(self.rho_logit), "m": m, "w2": w2 * alpha[:, None, None],
+               "c": c, "h0": alpha * h0, "h1": alpha * h1, "h2": TANH2_MAX * alpha * n2 * n1 * n1}
+        if self.axis is not None:
+            out["axis"] = self.axis / torch.sqrt((self.axis ** 2).sum(1, keepdim=True) + _EPS)
+        return out
 
-        Rows per layer: r, t, dr/dx_c (d-1 rows), dt/dx_c (d-1 rows), from Eq. (F3) and
-        d/dx_c (W [cos z; sin z]) = [W_sin, -W_cos] [cos z; sin z] Omega.
-        """
-        k, h = self.n_layers, self.features
-        w = self.weight * self.feature_scale                              # (K, 2, 2H)
-        wc, ws = w[:, :, None, :h], w[:, :, None, h:]                     # (K, 2, 1, H)
-        om = self.omega.transpose(1, 2)[:, None]                          # (K, 1, d-1, H)
-        wd = torch.cat([ws * om, -wc * om], dim=-1).reshape(k, -1, 2 * h)  # (K, 2 (d-1), 2H)
-        zero = self.bias.new_zeros(k, wd.shape[1])
-        return torch.cat([w, wd], dim=1), torch.cat([self.bias, zero], dim=1)
+    def bounds(self) -> list[LayerBound]:
+        """Every layer's ``LayerBound``, in the order they act."""
+        with torch.no_grad():
+            p = {k: v.detach().double().numpy() for k, v in self.scaled().items()}
+            center = self.center.detach().double().numpy()
+        out = []
+        for k in range(self.n_pairs):
+            sm = float(shear_sigma_max(p["m"][k]))
+            out.append(LayerBound("swirl", 1.0 / sm, sm, center[k],
+                                  float((np.abs(p["theta"][k]) * p["rho"][k]).sum() * _E_HALF),
+                                  {"theta": p["theta"][k], "rho": p["rho"][k]}))
+            c = float(p["c"][k])
+            out.append(LayerBound("residual", 1.0 - c, 1.0 + c, np.zeros(self.dim),
+                                  float(p["h0"][k] + p["h1"][k] * self.window * _E_HALF),
+                                  {"window": np.float64(self.window), "h0": p["h0"][k], "h1": p["h1"][k],
+                                   "h2": p["h2"][k]}))
+        return out
 
-    def _features(self, k: int, xc: torch.Tensor) -> torch.Tensor:
-        z = xc @ self.omega[k].T                                          # (B, H)
-        return torch.cat([torch.cos(z), torch.sin(z)], dim=1)            # (B, 2H)
+    def singular_value_bounds(self) -> tuple[float, float]:
+        """(s_lo, s_hi) of Eq. (F4)."""
+        b = self.bounds()
+        return float(np.prod([l.sigma_lo for l in b])), float(np.prod([l.sigma_hi for l in b]))
 
-    def _conditioner(self, k: int, xc: torch.Tensor, w: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-        """(r, t[, dr/dx_c, dt/dx_c]) of layer k: (B, 2) or (B, 2 + 2(d-1)), windowed if ``window``."""
-        if self.window <= 0:
-            return torch.addmm(b[k][:w.shape[1]], self._features(k, xc), w[k].T)
-        raw = self._features(k, xc) @ w[k].T
-        env = torch.exp(-0.5 * (xc * xc).sum(1, keepdim=True) / self.window ** 2)    # (B, 1)
-        out = env * raw[:, :2] + b[k][:2]
-        if raw.shape[1] == 2:
-            return out
-        n = self.dim - 1
-        g = xc / self.window ** 2                                                 # (B, d-1), -de/dx_c / e
-        d_rt = raw[:, 2:].view(-1, 2, n) - raw[:, :2, None] * g[:, None, :]       # (B, 2, d-1)
-        return torch.cat([out, (env[:, :, None] * d_rt).reshape(-1, 2 * n)], dim=1)
+    # ---- the maps
+    def _rotation(self, p: dict[str, torch.Tensor], k: int, ang: torch.Tensor) -> torch.Tensor:
+        """R(ang), shape (B, d, d), for angles ang (B,)."""
+        cs, sn = torch.cos(ang), torch.sin(ang)
+        if self.dim == 2:
+            return torch.stack([torch.stack([cs, -sn], -1), torch.stack([sn, cs], -1)], -2)
+        a = p["axis"][k]
+        kk = a.new_zeros(3, 3)
+        kk = torch.stack([torch.stack([a.new_zeros(()), -a[2], a[1]]), torch.stack([a[2], a.new_zeros(()), -a[0]]),
+                          torch.stack([-a[1], a[0], a.new_zeros(())])])
+        eye = torch.eye(3, dtype=a.dtype)
+        return eye + sn[:, None, None] * kk + (1 - cs)[:, None, None] * (kk @ kk)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """y = phi(x), Eq. (F1) layer by layer; x : tensor, shape (B, d)."""
-        w, b = self.weight * self.feature_scale, self.bias
-        for k in range(self.n_layers):
-            u, c = self._u_c(k)
-            out = self._conditioner(k, x[:, c], w, b)                    # (B, 2)
-            es = torch.exp(self.beta * torch.tanh(out[:, 0] / self.beta))
-            x = torch.where(self.masks[k], (x[:, u] * es + out[:, 1]).unsqueeze(-1), x)
-        return x
+    def _generator(self, p: dict[str, torch.Tensor], k: int, z: torch.Tensor) -> torch.Tensor:
+        """K z: J90 z (d = 2) or a x z (d = 3), shape (B, d)."""
+        if self.dim == 2:
+            return torch.stack([-z[:, 1], z[:, 0]], -1)
+        return torch.cross(p["axis"][k].expand_as(z), z, dim=-1)
 
-    def forward_with_jacobian(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """y = phi(x), shape (B, d), and J_phi(x) = dphi/dx, shape (B, d, d): Eqs. (F1), (F5)."""
-        n = self.dim - 1
-        w, b = self.readout()
-        jac = torch.eye(self.dim, dtype=x.dtype).expand(x.shape[0], -1, -1)
-        for k in range(self.n_layers):
-            u, c = self._u_c(k)
-            xu = x[:, u]
-            out = self._conditioner(k, x[:, c], w, b)                    # (B, 2 + 2(d-1))
-            th = torch.tanh(out[:, 0] / self.beta)
-            es = torch.exp(self.beta * th)
-            shear = (xu * es * (1.0 - th * th)).unsqueeze(-1) * out[:, 2:2 + n] + out[:, 2 + n:]
-            row = es.unsqueeze(-1) * jac[:, u] + (shear.unsqueeze(1) @ jac[:, c]).squeeze(1)
-            jac = torch.where(self.masks[k][:, None], row.unsqueeze(1), jac)
-            x = torch.where(self.masks[k], (xu * es + out[:, 1]).unsqueeze(-1), x)
+    def _angle(self, p: dict[str, torch.Tensor], k: int, r2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """theta(r) and q(r) = theta'(r) / r for squared radii r2 (B,)."""
+        rho2 = p["rho"][k] ** 2
+        e = torch.exp(-0.5 * r2[:, None] / rho2)                       # (B, J)
+        th = p["theta"][k]
+        return (th * e).sum(1), -(th / rho2 * e).sum(1)
+
+    def forward_with_jacobian(self, x: torch.Tensor, jacobian: bool = True
+                              ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """y = phi(x), shape (B, d), and J_phi(x), shape (B, d, d) (None unless ``jacobian``)."""
+        p = self.scaled()
+        eye = torch.eye(self.dim, dtype=x.dtype)
+        jac = eye.expand(x.shape[0], -1, -1) if jacobian else None
+        for k in range(self.n_pairs):
+            z = x - self.center[k]
+            ang, q = self._angle(p, k, (z * z).sum(1))
+            rot = self._rotation(p, k, ang)
+            y = self.center[k] + (rot @ z.unsqueeze(-1)).squeeze(-1)
+            if jac is not None:
+                kz = self._generator(p, k, z)                          # K z
+                jk = rot @ (eye + q[:, None, None] * kz[:, :, None] * z[:, None, :])
+                jac = jk @ jac
+            x = y
+            env = torch.exp(-0.5 * (x * x).sum(1) / self.window ** 2)
+            th = torch.tanh(torch.addmm(self.b1[k], x, self.w1[k].T))
+            h = th @ p["w2"][k].T
+            if jac is not None:
+                jh = (p["w2"][k] * (1 - th * th)[:, None, :]) @ self.w1[k]
+                jg = env[:, None, None] * (jh - h[:, :, None] * x[:, None, :] / self.window ** 2)
+                jac = (eye + jg) @ jac
+            x = x + env[:, None] * h
         return x, jac
 
-    def inverse(self, y: torch.Tensor) -> torch.Tensor:
-        """x = phi^-1(y), Eq. (F4) layer by layer in reverse; y : tensor, shape (B, d)."""
-        w, b = self.weight * self.feature_scale, self.bias
-        for k in reversed(range(self.n_layers)):
-            u, c = self._u_c(k)
-            out = self._conditioner(k, y[:, c], w, b)
-            s = self.beta * torch.tanh(out[:, 0] / self.beta)
-            y = torch.where(self.masks[k], ((y[:, u] - out[:, 1]) * torch.exp(-s)).unsqueeze(-1), y)
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """y = phi(x); x : tensor, shape (B, d)."""
+        return self.forward_with_jacobian(x, jacobian=False)[0]
+
+    @torch.no_grad()
+    def inverse(self, y: torch.Tensor, tol: float = 1e-14, max_iter: int = 2000) -> torch.Tensor:
+        """x = phi^-1(y): blocks by fixed-point iteration (ratio c_k < 1), swirls in closed form."""
+        p = self.scaled()
+        for k in reversed(range(self.n_pairs)):
+            x = y.clone()
+            for _ in range(max_iter):
+                env = torch.exp(-0.5 * (x * x).sum(1) / self.window ** 2)
+                h = torch.tanh(torch.addmm(self.b1[k], x, self.w1[k].T)) @ p["w2"][k].T
+                x_new = y - env[:, None] * h
+                done = float((x_new - x).abs().max()) <= tol * (1.0 + float(y.abs().max()))
+                x = x_new
+                if done:
+                    break
+            z = x - self.center[k]
+            ang, _ = self._angle(p, k, (z * z).sum(1))
+            y = self.center[k] + (self._rotation(p, k, -ang) @ z.unsqueeze(-1)).squeeze(-1)
         return y
 
-    def numpy_params(self) -> list[dict[str, Any]]:
-        """Each layer as plain float64 data for ``coupling_flow_numpy``: u, c (list), beta,
-        ``inv_window2`` (1/R^2, 0 without a window), ``omega_aug`` (2H, d) with
-        cos(omega_aug [x_c; 1]) = [cos z; sin z] (the last column holds the phases 0 and -pi/2),
-        and the stacked read-out ``w`` (2 + 2(d-1), 2H), ``b`` (list)."""
+    def numpy_params(self) -> list[dict[str, np.ndarray | float]]:
+        """Per pair, float64 arrays for ``bounded_flow_numpy``."""
         with torch.no_grad():
-            w, b = self.readout()
-        h = self.features
-        phase = np.concatenate([np.zeros(h), np.full(h, -np.pi / 2)])[:, None]
-        layers = []
-        for k in range(self.n_layers):
-            u, c = self._u_c(k)
-            om = self.omega[k].double().numpy()
-            layers.append({"u": u, "c": [int(i) for i in np.arange(self.dim)[c]], "beta": self.beta,
-                           "inv_window2": 1.0 / self.window ** 2 if self.window > 0 else 0.0,
-                           "omega_aug": np.ascontiguousarray(np.hstack([np.vstack([om, om]), phase])),
-                           "w": w[k].double().numpy().copy(), "b": [float(v) for v in b[k]]})
-        return layers
+            p = {k: v.detach().double().numpy() for k, v in self.scaled().items()}
+            w1, b1 = self.w1.double().numpy(), self.b1.double().numpy()
+            center = self.center.double().numpy()
+        out = []
+        d = self.dim
+        for k in range(self.n_pairs):
+            m = (p["w2"][k][:, None, :] * w1[k].T[None, :, :]).reshape(d * d, -1)
+            item: dict[str, np.ndarray | float] = {
+                "c": center[k].copy(), "theta": p["theta"][k].copy(), "inv_2rho2": 0.5 / p["rho"][k] ** 2,
+                "w1b": np.ascontiguousarray(np.hstack([w1[k], b1[k][:, None]])),
+                "w2": np.ascontiguousarray(p["w2"][k]), "m": np.ascontiguousarray(m),
+                "inv_r2": 1.0 / self.window ** 2}
+            if d == 3:
+                a = p["axis"][k]
+                item["K"] = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+            out.append(item)
+        return out
 
 
-def coupling_flow_numpy(params: list[dict[str, Any]], x: np.ndarray | list[float]
-                        ) -> tuple[list[float], list[list[float]]]:
-    """phi(x) and J_phi(x) for ONE point: Eqs. (F1)-(F3), (F5) as ``CouplingFlow``, in float64.
+def bounded_flow_numpy(params: list[dict[str, np.ndarray | float]], x: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """phi(x) and J_phi(x) for ONE point, as ``BoundedFlow.forward_with_jacobian`` in float64.
 
-    The control-loop path: per layer three numpy calls (features, cos, read-out), everything of
-    size d in Python floats (numpy calls on d-vectors cost more than their arithmetic).
-    params : ``CouplingFlow.numpy_params()``; x : d floats.
-    Returns y (d floats) and J (d rows of d floats).
+    params : ``BoundedFlow.numpy_params()``; x : array, shape (d,). Returns y (d,) and J (d, d).
     """
-    y = [float(v) for v in x]
-    d = len(y)
-    n = d - 1
-    jac = [[1.0 if i == j else 0.0 for j in range(d)] for i in range(d)]
-    arg = np.ones(d)                                   # [x_c; 1]
+    d = x.shape[0]
+    y = np.array(x, dtype=np.float64)
+    jac = np.eye(d)
+    arg = np.ones(d + 1)
+    eye = np.eye(d)
     for p in params:
-        u, c, beta, b, inv_r2 = p["u"], p["c"], p["beta"], p["b"], p["inv_window2"]
-        for m, ci in enumerate(c):
-            arg[m] = y[ci]
-        feats = p["omega_aug"] @ arg
-        raw = (p["w"] @ np.cos(feats, out=feats)).tolist()
-        env = math.exp(-0.5 * inv_r2 * sum(y[ci] * y[ci] for ci in c)) if inv_r2 else 1.0
-        th = math.tanh((env * raw[0] + b[0]) / beta)
-        es = math.exp(beta * th)
-        ds = y[u] * es * (1.0 - th * th)
-        row = [es * v for v in jac[u]]
-        for m, ci in enumerate(c):
-            g = y[ci] * inv_r2
-            shear = env * (ds * (raw[2 + m] - g * raw[0]) + raw[2 + n + m] - g * raw[1])
-            jc = jac[ci]
-            for j in range(d):
-                row[j] += shear * jc[j]
-        jac[u] = row
-        y[u] = y[u] * es + env * raw[1] + b[1]
+        z = y - p["c"]
+        r2 = float(z @ z)
+        e = np.exp(-r2 * p["inv_2rho2"])
+        te = p["theta"] * e
+        ang = float(te.sum())
+        q = -2.0 * float((te * p["inv_2rho2"]).sum())
+        cs, sn = math.cos(ang), math.sin(ang)
+        if d == 2:
+            rot = np.array([[cs, -sn], [sn, cs]])
+            kz = np.array([-z[1], z[0]])
+        else:
+            kk = p["K"]
+            rot = eye + sn * kk + (1 - cs) * (kk @ kk)
+            kz = kk @ z
+        jac = (rot @ (eye + q * np.outer(kz, z))) @ jac
+        y = p["c"] + rot @ z
+        arg[:d] = y
+        th = np.tanh(p["w1b"] @ arg)
+        env = math.exp(-0.5 * p["inv_r2"] * float(y @ y))
+        h = p["w2"] @ th
+        jg = (p["m"] @ (1.0 - th * th)).reshape(d, d) - np.outer(h, y * p["inv_r2"])
+        jac = (eye + env * jg) @ jac
+        y = y + env * h
     return y, jac

@@ -54,6 +54,7 @@ DTYPES: dict[str, torch.dtype] = {"float32": torch.float32, "float64": torch.flo
 # per-op overhead, and a second thread measured no faster (slower under load) on 2 cores.
 TRAIN_THREADS = 1
 POSTFIX_EVERY = 25
+MAX_LR = 1e3
 
 
 @dataclass
@@ -107,6 +108,8 @@ class NodeConfig:
             value = getattr(self, name)
             if not _is_real(value) or value <= 0:
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
+        if self.lr > MAX_LR:  # beyond it Adam's step overflows float32 (a traceback, not a model)
+            raise ValueError(f"lr must be at most {MAX_LR:g}, got {self.lr!r}")
         if self.lr_final > self.lr:
             raise ValueError(f"lr_final ({self.lr_final}) must not exceed lr ({self.lr})")
         if not _is_real(self.weight_decay) or self.weight_decay < 0:
@@ -399,6 +402,33 @@ class NodeField(VelocityField):
             g0 = _numpy_mlp(layers, module.activation)(np.zeros(self.dim))
             layers[-1] = (w_out, b_out - g0)
         return layers
+
+    def jacobian_lipschitz_bound(self) -> float:
+        """An upper bound of Lip(J_f) = sup |D^2 f| on all of R^d, user units (1/(s unit)).
+
+        For f = W_L sigma(... sigma(W_1 x + b_1)) with |sigma'| <= s1 and |sigma''| <= s2 and
+        n_i = |W_i|_2: D^2 f = sum_k W_L D_{L-1} ... diag(sigma''(z_k) dz_k) ... D_1 W_1, so
+        |D^2 f| <= s2 sum_{k<L} (prod_{i>k} n_i) s1^(L-1-k) (prod_{i<=k} n_i s1^(k-1))^2.
+        In user units D^2 f scales by 1/s. Returns inf for an activation without a bounded
+        second derivative (relu) or non-finite weights.
+        """
+        module: NodeMLP = self.module  # type: ignore[assignment]
+        slopes = {"tanh": (1.0, 4.0 / (3.0 * math.sqrt(3.0))), "softplus": (1.0, 0.25),
+                  "silu": (1.1, 0.5), "elu": (1.0, 1.0)}
+        if module.activation not in slopes:
+            return math.inf
+        s1, s2 = slopes[module.activation]
+        norms = [float(torch.linalg.matrix_norm(m.weight.detach().double(), ord=2)) * (1 + 1e-12)
+                 for m in module.linears()]
+        if not all(math.isfinite(n) for n in norms):
+            return math.inf
+        n_layers = len(norms)
+        total = 0.0
+        for k in range(1, n_layers):
+            after = math.prod(norms[k:]) * s1 ** (n_layers - 1 - k)
+            before = math.prod(norms[:k]) * s1 ** (k - 1)
+            total += s2 * after * before * before
+        return total / float(self.norm.scale)
 
     def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
         """x_n (d,) -> f(x_n) (d,): z_i = sigma(W_i z_{i-1} + b_i), f = W_L z_{L-1} + b_L - g(0)."""

@@ -1,0 +1,524 @@
+"""Tracking learner: a field that contracts, at a user rate K, toward a learned reference motion, in phase.
+
+The reference is learned from all the demos. Each demo i, of duration T_i, is indexed by its
+normalised time (the phase) s = (t - t_i0) / T_i in [0, 1] and fitted by a least-squares cubic
+B-spline (``scipy.interpolate.make_lsq_spline``, ``knots`` uniform interior knots) in normalised
+coordinates; the reference is their mean,
+
+    Eq. (T1): r(s) = (1/N) sum_i x_i(s),   r'(s) = dr/ds,   T = (1/N) sum_i T_i,
+
+tabulated with its derivative at ``table`` phases (buffers of the torch module, so model files
+carry it) and cubic-Hermite interpolated between them (C1 in s). With ``condition_start`` the
+reference is conditioned on the start x0 as a ProMP is (Paraschos et al. 2013): with the demos' empirical cross-covariance
+C(s, 0) = cov_i(x_i(s), x_i(0)) and delta = x0 - r(0),
+
+    Eq. (T2): r(s | x0) = r(s) + G(s) delta,   G(s) = C(s, 0) (C(0, 0) + sigma^2 I)^-1,
+
+so a start like a demo's start follows that demo's shape (G(0) ~ I, G(1) = 0: the goal is kept).
+
+The state is (x, s), s(0) = 0 (plus the constant delta with ``condition_start``). The field is
+
+    Eq. (T3): dx/dt = s_dot r'(s) + K (r(s) - x),
+    Eq. (T4): ds/dt = h(|x - r(s)|) c(s) / T,   h(e) = 1 / (1 + (e / eps)^2),
+              c(s) = min(1, (1 - s) / 0.01) (the phase stops at s = 1 exactly, without overshoot),
+
+with e in normalised units (a fraction of the demos' size). h is the phase stopping of DMPs
+(Ijspeert et al. 2013, Eq. 2.11): the phase runs at the demos' pace on the path and waits when the
+motion is held back, so the reference never runs away. At s = 1 the field is K (r(1) - x):
+the goal r(1) is a globally exponentially stable equilibrium.
+
+Contraction property (the paper's Eqs. (16)-(18)). Let e = x - r(s). For ANY phase law s_dot,
+Eq. (T3) gives de/dt = dx/dt - r'(s) s_dot = -K e, hence
+
+    Eq. (T5): |x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t)    (Eq. (18) with lambda = K, overshoot 1),
+
+and for a given phase signal s(t) the x-subsystem dx/dt = s_dot(t) r'(s(t)) + K (r(s(t)) - x) has
+Jacobian d f / d x = -K I: it contracts at rate K in the Euclidean metric M = I (Eq. (17) with
+a = b = 1, condition number 1; partial contraction, Wang & Slotine 2005). Every start therefore
+converges onto the reference path in phase at rate K; since s_dot >= h(e) / T and e -> 0, the phase
+reaches 1 and every trajectory ends at the goal. The full (x, s) system is not claimed to contract in
+one metric: through h, s_dot depends on x, so two starts may settle on the path at different phases
+(they meet again at the goal). ``check_tracking_contraction`` verifies Eq. (T5) and J = -K I numerically.
+
+Units: x_n = (x - goal) / scale and time is not rescaled, so K is in 1/s of user time.
+
+References: Ijspeert, Nakanishi, Hoffmann, Pastor, Schaal (2013), Neural Computation 25(2):328-373,
+doi:10.1162/NECO_a_00393. Paraschos, Daniel, Peters, Neumann (2013), Probabilistic movement
+primitives, NeurIPS. Wang, Slotine (2005), Biological Cybernetics 92:38-53, doi:10.1007/s00422-004-0527-x.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+import torch
+from scipy.interpolate import make_lsq_spline
+from torch import nn
+from torchdiffeq import odeint
+
+from lfd.demos import DemoSet
+from lfd.field import VelocityField
+from lfd.learners.base import Learner
+
+DEFAULT_RATE = 3.0            # K, 1/s
+ERROR_FLOOR = 1e-5            # normalised units: Eq. (T5) is checked as |e(t)| <= bound + floor (RK4 error)
+PHASE_END = 0.01              # Eq. (T4): the phase slows linearly over its last 1% and stops at 1 exactly
+CONTRACTION_PROPERTY = (
+    "for any phase law s(t), the tracking error e = x - r(s) obeys de/dt = -K e, so "
+    "|x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t); for a given phase signal the x-subsystem "
+    "dx/dt = s_dot r'(s) + K (r(s) - x) contracts at rate K in the Euclidean metric "
+    "(Jacobian -K I, metric bounds a = b = 1); the phase reaches 1 and the goal r(1) is globally "
+    "exponentially stable")
+
+
+@dataclass
+class TrackingConfig:
+    """Options of the tracking learner.
+
+    rate : K of Eq. (T3), 1/s, > 0 (the contraction rate toward the reference)
+    knots : interior knots of each demo's cubic B-spline (capped at a third of its samples)
+    table : phases at which the reference and r' are tabulated (cubic Hermite between them)
+    phase_tolerance : eps of Eq. (T4), normalised units (fraction of the demos' size)
+    phase_stop : use h of Eq. (T4) (else h = 1: a time-indexed reference)
+    condition_start : condition the reference on the start, Eq. (T2)
+    start_noise : sigma of Eq. (T2), normalised units
+    """
+
+    rate: float = DEFAULT_RATE
+    knots: int = 40
+    table: int = 1024
+    phase_tolerance: float = 0.3
+    phase_stop: bool = True
+    condition_start: bool = False
+    start_noise: float = 0.02
+
+    def __post_init__(self) -> None:
+        for name in ("rate", "phase_tolerance", "start_noise"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+            setattr(self, name, float(v))
+        for name, low in (("knots", 1), ("table", 16)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
+        for name in ("phase_stop", "condition_start"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+
+
+def _hermite_weights(w: Any, _unused: Any = None) -> tuple[Any, Any, Any, Any, Any, Any, Any, Any]:
+    """Cubic Hermite basis on [0, 1] at w and its derivatives in w (torch or numpy, elementwise)."""
+    w2, w3 = w * w, w * w * w
+    return (2 * w3 - 3 * w2 + 1, w3 - 2 * w2 + w, -2 * w3 + 3 * w2, w3 - w2,
+            6 * w2 - 6 * w, 3 * w2 - 4 * w + 1, -6 * w2 + 6 * w, 3 * w2 - 2 * w)
+
+
+def _hermite(values: torch.Tensor, slopes: torch.Tensor, s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Cubic Hermite interpolation of a table: values, slopes, shape (M, ...), at s_j = j / (M - 1),
+    evaluated at phases s, shape (B,), clamped to [0, 1]. Returns the value and its exact derivative
+    in s, each shape (B, ...): C1 in s, so Eq. (T5) holds to the integrator's accuracy."""
+    m = values.shape[0]
+    hs = 1.0 / (m - 1)
+    u = s.clamp(0.0, 1.0) * (m - 1)
+    i0 = u.floor().long().clamp(0, m - 2)
+    w = (u - i0.to(u.dtype)).reshape(-1, *([1] * (values.dim() - 1)))
+    a0, b0, a1, b1, da0, db0, da1, db1 = _hermite_weights(w, None)
+    p0, p1, m0, m1 = values[i0], values[i0 + 1], slopes[i0] * hs, slopes[i0 + 1] * hs
+    return a0 * p0 + b0 * m0 + a1 * p1 + b1 * m1, (da0 * p0 + db0 * m0 + da1 * p1 + db1 * m1) / hs
+
+
+class TrackingModule(nn.Module):
+    """Eqs. (T1)-(T4) on normalised coordinates; the reference tables are buffers.
+
+    ref, dref : (M, d) r(s_j) and r'(s_j) at s_j = j / (M - 1); gain, dgain : (M, d, d) G(s_j) and
+    G'(s_j) of Eq. (T2) (zero without ``condition_start``); duration : T, s (scalar).
+    """
+
+    def __init__(self, dim: int, config: TrackingConfig) -> None:
+        super().__init__()
+        self.dim = dim
+        self.rate = config.rate
+        self.eps = config.phase_tolerance
+        self.phase_stop = config.phase_stop
+        m = config.table
+        self.register_buffer("ref", torch.zeros(m, dim))
+        self.register_buffer("dref", torch.zeros(m, dim))
+        self.register_buffer("gain", torch.zeros(m, dim, dim))
+        self.register_buffer("dgain", torch.zeros(m, dim, dim))
+        self.register_buffer("duration", torch.ones(()))
+
+    def reference(self, s: torch.Tensor, delta: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """r(s | x0) and r'(s | x0) of Eqs. (T1)-(T2), each (B, d), at phases s, shape (B,),
+        for start offsets delta = x0_n - r(0), shape (B, d) (None: the mean reference)."""
+        r, dr = _hermite(self.ref, self.dref, s)
+        if delta is not None:
+            g, dg = _hermite(self.gain, self.dgain, s)
+            r = r + (g @ delta.unsqueeze(-1)).squeeze(-1)
+            dr = dr + (dg @ delta.unsqueeze(-1)).squeeze(-1)
+        return r, dr
+
+    def phase_rate(self, err: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        """Eq. (T4): ds/dt, shape (B,), for tracking errors err, shape (B, d), at phases s, shape (B,)."""
+        h = 1.0 / (1.0 + (err * err).sum(-1) / self.eps ** 2) if self.phase_stop else torch.ones_like(s)
+        return h * ((1.0 - s) / PHASE_END).clamp(0.0, 1.0) / self.duration
+
+    def velocity(self, x: torch.Tensor, s: torch.Tensor, delta: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Eqs. (T3)-(T4): (dx/dt (B, d), ds/dt (B,)) at x, shape (B, d), and phases s, shape (B,)."""
+        r, dr = self.reference(s, delta)
+        sdot = self.phase_rate(x - r, s)
+        return sdot.unsqueeze(-1) * dr + self.rate * (r - x), sdot
+
+    def driven(self, x: torch.Tensor, s: torch.Tensor, sdot: torch.Tensor,
+               delta: torch.Tensor | None = None) -> torch.Tensor:
+        """The x-subsystem of Eq. (T3) for a given phase signal: s_dot r'(s) + K (r(s) - x), (B, d)."""
+        r, dr = self.reference(s, delta)
+        return sdot.unsqueeze(-1) * dr + self.rate * (r - x)
+
+    def project(self, x: torch.Tensor) -> torch.Tensor:
+        """The phase of the reference point nearest to each x, shape (B, d) -> (B,)."""
+        j = torch.cdist(x, self.ref).argmin(dim=1)
+        return j.to(x.dtype) / (self.ref.shape[0] - 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """An autonomous view x -> dx/dt, (B, d) -> (B, d): Eq. (T3) at the phase of the nearest
+        reference point (``project``). Rollouts never use it; it serves streamline plots."""
+        with torch.no_grad():
+            s = self.project(x)
+        return self.velocity(x, s)[0]
+
+
+class TrackingField(VelocityField):
+    """A field contracting toward a learned reference motion, in phase (module docstring).
+
+    The state is (x, s). ``rollout`` integrates both from s = 0 and returns x; ``velocity(x, s)``
+    and ``phase_point_fn()`` serve closed loops that carry the phase themselves; ``__call__(x)``
+    is the autonomous view of ``TrackingModule.forward`` (the phase of the nearest reference point).
+    """
+
+    module: TrackingModule
+
+    # ---- the contraction certificate's constants
+    @property
+    def rate(self) -> float:
+        """K of Eq. (T3), 1/s."""
+        return float(self.config["rate"])
+
+    @property
+    def metric_bounds(self) -> tuple[float, float]:
+        """(a, b) with a I <= M <= b I: the Euclidean metric, (1, 1)."""
+        return 1.0, 1.0
+
+    @property
+    def condition_bound(self) -> float:
+        """b / a = 1: the overshoot factor sqrt(b / a) of Eq. (18) is 1."""
+        a, b = self.metric_bounds
+        return b / a
+
+    @property
+    def lipschitz_bound(self) -> float:
+        """A Lipschitz constant in x of the closed-loop velocity (Eqs. (T3)-(T4)), 1/s:
+        K + max_s |r'(s)| max_e |h'(e)| / T with max |h'| = 3 sqrt(3) / (8 eps) (normalised units, so
+        unit-free). The x-subsystem for a given phase signal has K alone. For the mean reference
+        (a start-conditioned one adds G'(s) delta to r')."""
+        mod = self.module
+        if not mod.phase_stop:
+            return self.rate
+        r_max = float(torch.linalg.vector_norm(mod.dref, dim=1).max())
+        return self.rate + r_max * 3.0 * math.sqrt(3.0) / (8.0 * mod.eps) / self.duration
+
+    @property
+    def contraction_property(self) -> str:
+        """What holds (Eq. (T5)), in words."""
+        return CONTRACTION_PROPERTY
+
+    @property
+    def duration(self) -> float:
+        """T of Eq. (T1): the demos' mean duration, s."""
+        return float(self.module.duration)
+
+    @property
+    def conditioned(self) -> bool:
+        return bool(self.config.get("condition_start", False))
+
+    # ---- phase API
+    def initial_phase(self) -> float:
+        """s(0) = 0."""
+        return 0.0
+
+    def start_offset(self, x0: np.ndarray) -> np.ndarray | None:
+        """delta = x0_n - r(0) of Eq. (T2) in normalised units, shape (B, d), or None if unconditioned."""
+        if not self.conditioned:
+            return None
+        return self.norm.to_norm(np.atleast_2d(x0)) - self.module.ref[0].numpy()
+
+    def reference(self, s: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """r(s) (or r(s | x0)) in user units: s : array, shape (P,) -> shape (P, d)."""
+        s = torch.as_tensor(np.atleast_1d(np.asarray(s, dtype=np.float64)))
+        delta = None
+        if x0 is not None and self.conditioned:
+            delta = torch.from_numpy(np.broadcast_to(self.start_offset(x0)[0], (len(s), self.dim)).copy())
+        with torch.no_grad():
+            return self.norm.from_norm(self.module.reference(s, delta)[0].numpy())
+
+    def velocity(self, x: np.ndarray, s: np.ndarray | float, x0: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Eqs. (T3)-(T4) in user units: x : (B, d) or (d,), s : (B,) or scalar; x0 : the run's start
+        (used with ``condition_start``). Returns (dx/dt, same shape as x; ds/dt, shape (B,) or scalar)."""
+        x = np.asarray(x, dtype=np.float64)
+        single = x.ndim == 1
+        xb = np.atleast_2d(x)
+        sb = np.broadcast_to(np.asarray(s, dtype=np.float64), (len(xb),)).copy()
+        delta = None
+        if x0 is not None and self.conditioned:
+            delta = torch.from_numpy(np.broadcast_to(self.start_offset(x0)[0], xb.shape).copy())
+        with torch.no_grad():
+            v, sd = self.module.velocity(torch.from_numpy(self.norm.to_norm(xb)), torch.from_numpy(sb), delta)
+        v, sd = v.numpy() * self.norm.scale, sd.numpy()
+        return (v[0], float(sd[0])) if single else (v, sd)  # type: ignore[return-value]
+
+    def phase_point_fn(self, x0: np.ndarray | None = None) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
+        """A fast numpy evaluator (x (d,), s) -> (dx/dt (d,), ds/dt) in user units for control loops
+        (Eqs. (T3)-(T4); with ``condition_start``, for the run that started at x0). Agrees with
+        ``velocity`` to 1e-12."""
+        mod = self.module
+        ref, dref = mod.ref.numpy().copy(), mod.dref.numpy().copy()
+        if x0 is not None and self.conditioned:
+            delta = self.start_offset(x0)[0]
+            ref = ref + mod.gain.numpy() @ delta
+            dref = dref + mod.dgain.numpy() @ delta
+        goal, sc, k, eps2 = self.norm.goal.copy(), float(self.norm.scale), mod.rate, mod.eps ** 2
+        inv_t, m, stop = 1.0 / float(mod.duration), ref.shape[0], mod.phase_stop
+
+        hs = 1.0 / (m - 1)
+
+        def f(x: np.ndarray, s: float) -> tuple[np.ndarray, float]:
+            u = min(max(s, 0.0), 1.0) * (m - 1)
+            i0 = min(int(u), m - 2)
+            a0, b0, a1, b1, da0, db0, da1, db1 = _hermite_weights(u - i0, None)
+            p0, p1, m0, m1 = ref[i0], ref[i0 + 1], dref[i0] * hs, dref[i0 + 1] * hs
+            r = a0 * p0 + b0 * m0 + a1 * p1 + b1 * m1
+            dr = (da0 * p0 + db0 * m0 + da1 * p1 + db1 * m1) / hs
+            xn = (np.asarray(x, dtype=np.float64) - goal) / sc
+            e = xn - r
+            end = min(max((1.0 - s) / PHASE_END, 0.0), 1.0)
+            sdot = (inv_t / (1.0 + float(e.dot(e)) / eps2) if stop else inv_t) * end
+            return (sdot * dr - k * e) * sc, sdot
+
+        return f
+
+    # ---- rollouts integrate (x, s) jointly
+    def rollout_with_phase(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1,
+                           s0: np.ndarray | float = 0.0, start: np.ndarray | None = None,
+                           step: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate Eqs. (T3)-(T4) from x0, shape (B, d) or (d,), and phase s0 (default 0) over t, shape (T,).
+
+        ``start`` : the run's start, shape (B, d) or (d,), for Eq. (T2) (default x0; give it when
+        continuing a run, e.g. after a kick). Returns x, shape (B, T, d) (or (T, d)), user units,
+        and s, shape (B, T) (or (T,)). Fixed-step solvers take ``substeps`` steps per interval of t,
+        or steps of ``step`` seconds if given (then outputs are interpolated: use it for irregular t).
+        """
+        x0 = np.asarray(x0, dtype=np.float64)
+        single = x0.ndim == 1
+        xb = np.atleast_2d(x0)
+        t = np.asarray(t, dtype=np.float64)
+        options = None
+        if step is not None:
+            options = {"step_size": float(step), "interp": "cubic"}
+        elif method in ("rk4", "euler", "midpoint") and substeps > 1:
+            options = {"step_size": float(np.min(np.diff(t))) / substeps}
+        delta = self.start_offset(np.broadcast_to(xb if start is None else start, xb.shape))
+        sb = torch.from_numpy(np.broadcast_to(np.asarray(s0, dtype=np.float64), (len(xb),)).copy())
+        with torch.no_grad():
+            xs, ss = self._rollout_torch(torch.from_numpy(xb), torch.from_numpy(t),
+                                         None if delta is None else torch.from_numpy(delta), method, options, sb)
+        xs, ss = xs.numpy(), ss.numpy()
+        return (xs[0], ss[0]) if single else (xs, ss)
+
+    def _rollout_torch(self, x0: torch.Tensor, t: torch.Tensor, delta: torch.Tensor | None, method: str,
+                       options: dict[str, Any] | None, s0: torch.Tensor | None = None
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(x (B, T, d) user units, s (B, T)) from x0 (B, d) user units and phases s0 (B,) (default 0)."""
+        d = self.dim
+        s_init = x0.new_zeros(len(x0), 1) if s0 is None else s0.reshape(-1, 1).to(x0.dtype)
+        y0 = torch.cat([self.norm.to_norm_torch(x0), s_init], dim=1)
+
+        def rhs(_t: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+            v, sd = self.module.velocity(y[:, :d], y[:, d], delta)
+            return torch.cat([v, sd.unsqueeze(-1)], dim=1)
+
+        y = odeint(rhs, y0, t - t[0], method=method, options=options)     # (T, B, d + 1)
+        return self.norm.from_norm_torch(y[..., :d]).permute(1, 0, 2), y[..., d].permute(1, 0)
+
+    def rollout_torch(self, x0: torch.Tensor, t: torch.Tensor, method: str = "rk4",
+                      options: dict[str, Any] | None = None) -> torch.Tensor:
+        """Integrate (x, s) from x0, shape (B, d), s = 0, over t, shape (T,): x, shape (B, T, d)."""
+        delta = self.start_offset(x0.detach().numpy())
+        return self._rollout_torch(x0, t, None if delta is None else torch.from_numpy(delta), method, options)[0]
+
+    def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1) -> np.ndarray:
+        """Integrate (x, s) from x0, shape (B, d) or (d,), and s = 0 over t, shape (T,); returns x,
+        shape (B, T, d) (or (T, d)) in user units (``rollout_with_phase`` also returns s)."""
+        return self.rollout_with_phase(x0, t, method, substeps)[0]
+
+    def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The autonomous view (``TrackingModule.forward``) for one point, in numpy."""
+        ref, dref = self.module.ref.numpy().copy(), self.module.dref.numpy().copy()
+        k, eps2, inv_t, m = self.module.rate, self.module.eps ** 2, 1.0 / self.duration, ref.shape[0]
+        stop = self.module.phase_stop
+
+        def f(xn: np.ndarray) -> np.ndarray:
+            j = int(np.argmin(((ref - xn) ** 2).sum(1)))
+            e = xn - ref[j]
+            end = min(max((m - 1 - j) / ((m - 1) * PHASE_END), 0.0), 1.0)
+            sdot = (inv_t / (1.0 + float(e.dot(e)) / eps2) if stop else inv_t) * end
+            return sdot * dref[j] - k * e
+
+        return f
+
+
+# ---------------------------------------------------------------- learning the reference
+
+def phase_splines(demos: DemoSet, knots: int, phases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each demo's least-squares cubic B-spline in its normalised time s = (t - t_0) / T_i.
+
+    demos : normalised demos, x of shape (N, T, d); phases : shape (M,) in [0, 1].
+    Returns x_i(s_j) and dx_i/ds(s_j), each shape (N, M, d).
+    """
+    n_int = max(1, min(knots, demos.n_samples // 3))
+    inner = np.linspace(0.0, 1.0, n_int + 2)[1:-1]
+    tk = np.concatenate([[0.0] * 4, inner, [1.0] * 4])
+    xs, dxs = [], []
+    for t, x in zip(demos.t, demos.x):
+        s = (t - t[0]) / (t[-1] - t[0])
+        w = np.ones(len(s))
+        w[[0, -1]] = 1e3                       # pin the spline to the start and the goal
+        spl = make_lsq_spline(s, x, tk, k=3, w=w)
+        xs.append(spl(phases))
+        dxs.append(spl.derivative()(phases))
+    return np.stack(xs), np.stack(dxs)
+
+
+class TrackingLearner(Learner):
+    """The mean phase-indexed demo as the reference, tracked at rate K with phase stopping."""
+
+    name: ClassVar[str] = "tracking"
+    Config: ClassVar[type] = TrackingConfig
+    field_class: ClassVar[type[VelocityField]] = TrackingField
+
+    @classmethod
+    def build(cls, dim: int, config: TrackingConfig) -> TrackingModule:
+        """An empty float64 module (all-zero reference tables)."""
+        return TrackingModule(dim, config).double()
+
+    @classmethod
+    def fit(cls, module: nn.Module, demos: DemoSet, config: TrackingConfig, progress: bool) -> dict[str, Any]:
+        """Fill the tables of Eqs. (T1)-(T2) from the normalised ``demos`` (closed form, no iterations).
+
+        History: ``loss`` = [mean squared distance of the demo samples from the reference at their
+        phase, normalised units^2], ``spline_rmse`` (each demo from its own spline), ``spread``
+        (mean squared distance of the demos from the reference: the floor of the reference's RMSE).
+        """
+        assert isinstance(module, TrackingModule)
+        m = config.table
+        phases = np.linspace(0.0, 1.0, m)
+        xs, dxs = phase_splines(demos, config.knots, phases)          # (N, M, d)
+        ref, dref = xs.mean(0), dxs.mean(0)
+        n, d = demos.n_demos, demos.dim
+        gain = np.zeros((m, d, d))
+        dgain = np.zeros((m, d, d))
+        if config.condition_start and n > 1:
+            dev, ddev = xs - ref, dxs - dref                           # (N, M, d)
+            c00 = dev[:, 0].T @ dev[:, 0] / (n - 1)
+            inv = np.linalg.inv(c00 + config.start_noise ** 2 * np.eye(d))
+            gain = np.einsum("nmi,nj->mij", dev, dev[:, 0]) / (n - 1) @ inv
+            dgain = np.einsum("nmi,nj->mij", ddev, dev[:, 0]) / (n - 1) @ inv
+        with torch.no_grad():
+            module.ref.copy_(torch.from_numpy(ref))
+            module.dref.copy_(torch.from_numpy(dref))
+            module.gain.copy_(torch.from_numpy(gain))
+            module.dgain.copy_(torch.from_numpy(dgain))
+            module.duration.fill_(float(np.mean(demos.t[:, -1] - demos.t[:, 0])))
+        # residuals at the demo samples
+        s_all = (demos.t - demos.t[:, :1]) / (demos.t[:, -1:] - demos.t[:, :1])
+        r_at = np.stack([np.stack([np.interp(s, phases, ref[:, j]) for j in range(d)], -1) for s in s_all])
+        own = np.stack([np.stack([np.interp(s, phases, xi[:, j]) for j in range(d)], -1)
+                        for s, xi in zip(s_all, xs)])
+        loss = float(np.mean(np.sum((demos.x - r_at) ** 2, -1)))
+        return {"loss": [loss], "spline_rmse": float(np.sqrt(np.mean(np.sum((demos.x - own) ** 2, -1)))),
+                "spread": loss, "iterations": 1, "interrupted": False, "stopped_nonfinite": False}
+
+
+# ---------------------------------------------------------------- numerical check of Eq. (T5)
+
+def _batch_jacobian(f: Callable[[torch.Tensor], torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+    """d f_b / d x_b for a row-wise map f : (B, d) -> (B, d), by reverse mode, one pass per output
+    coordinate (rows do not interact, so the gradient of sum_b f_b,i is row i of each Jacobian).
+    Returns shape (B, d, d)."""
+    x = x.detach().requires_grad_(True)
+    y = f(x)
+    rows = [torch.autograd.grad(y[:, i].sum(), x, retain_graph=i < y.shape[1] - 1)[0] for i in range(y.shape[1])]
+    return torch.stack(rows, dim=1).detach()
+
+
+def check_tracking_contraction(field: TrackingField, lo: np.ndarray | None = None, hi: np.ndarray | None = None,
+                               n_points: int = 20_000, n_starts: int = 32, horizon: float | None = None,
+                               seed: int = 0, tolerance: float = 1e-6, steps: int = 600) -> dict[str, Any]:
+    """Check the stated contraction property of a tracking field numerically on a box.
+
+    1. Jacobian: at ``n_points`` random (x, s, s_dot), x ~ U(lo, hi), s ~ U(0, 1), s_dot ~ U(0, 2/T),
+       the x-subsystem f(x) = s_dot r'(s) + K (r(s) - x) (Eq. (T3), phase signal held) must satisfy
+       max eig(sym(df/dx)) <= -K (Eq. (17) with M = I, lambda = K), by reverse-mode autodiff.
+    2. Error decay: from ``n_starts`` random starts in the box, the closed-loop (x, s) rollout
+       (Eqs. (T3)-(T4), RK4, 2 ``steps`` steps over ``horizon``, default 1.5 T) must keep
+       |x(t) - r(s(t))| <= |x(0) - r(0)| exp(-K t) + ERROR_FLOOR (normalised units), Eq. (T5).
+    The Jacobian bound holds within ``tolerance`` (relative). The box defaults to the demos' box
+    grown by 50%.
+
+    Also reported, not checked: ``coupled_worst_eig``, max eig(sym(J)) of the closed-loop x-Jacobian
+    with s_dot = h(|x - r(s)|) / T differentiated too (the phase coupling of Eq. (T4)).
+
+    Returns a dict: ``property`` (text), ``rate`` K, ``bound`` -K, ``worst_eig``, ``certified`` (bool),
+    ``metric_bounds`` [a, b], ``condition_number`` b/a, ``lipschitz_bound`` (closed loop, see
+    ``TrackingField.lipschitz_bound``), ``subsystem_lipschitz`` (K), ``worst_error_ratio``
+    (max over t > 0 of |e(t)| / (|e(0)| exp(-K t)) where the bound exceeds 100 ERROR_FLOOR),
+    ``worst_error_excess`` (max of |e(t)| - |e(0)| exp(-K t), normalised units), ``coupled_worst_eig``,
+    ``n_points``, ``n_starts``, ``box`` [lo, hi] (user units).
+    """
+    if lo is None or hi is None:
+        blo, bhi = (np.asarray(v, dtype=np.float64) for v in field.history["demo_box"])
+        pad = (bhi - blo) * 0.25
+        lo, hi = blo - pad, bhi + pad
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    mod, k, d = field.module, field.rate, field.dim
+    rng = np.random.default_rng(seed)
+    xn = torch.from_numpy(field.norm.to_norm(rng.uniform(lo, hi, size=(n_points, d))))
+    s = torch.from_numpy(rng.uniform(0.0, 1.0, n_points))
+    sdot = torch.from_numpy(rng.uniform(0.0, 2.0 / field.duration, n_points))
+    jac = _batch_jacobian(lambda x: mod.driven(x, s, sdot), xn)                        # (P, d, d)
+    worst = float(torch.linalg.eigvalsh((jac + jac.transpose(1, 2)) / 2).max())
+    jc = _batch_jacobian(lambda x: mod.velocity(x, s)[0], xn)
+    coupled_worst = float(torch.linalg.eigvalsh((jc + jc.transpose(1, 2)) / 2).max())
+    # error decay from random starts, Eq. (T5), above the integrator's floor
+    x0 = rng.uniform(lo, hi, size=(n_starts, d))
+    horizon = horizon if horizon is not None else 1.5 * field.duration
+    t = np.linspace(0.0, horizon, steps + 1)
+    xs, ss = field.rollout_with_phase(x0, t, method="rk4", substeps=2)
+    r = np.stack([field.reference(si, x0i) for si, x0i in zip(ss, x0)])            # (B, T, d)
+    e = np.linalg.norm(xs - r, axis=-1) / field.norm.scale
+    bound = e[:, :1] * np.exp(-k * t)
+    above = bound[:, 1:] > 100 * ERROR_FLOOR
+    ratio = float(np.max(e[:, 1:][above] / bound[:, 1:][above])) if above.any() else 1.0
+    excess = float(np.max(e[:, 1:] - bound[:, 1:]))
+    certified = worst <= -k + tolerance * max(1.0, k) and excess <= ERROR_FLOOR
+    a, b = field.metric_bounds
+    return {"property": field.contraction_property, "rate": k, "bound": -k, "worst_eig": worst,
+            "certified": bool(certified), "metric_bounds": [a, b], "condition_number": b / a,
+            "lipschitz_bound": field.lipschitz_bound, "subsystem_lipschitz": k,
+            "worst_error_ratio": ratio, "worst_error_excess": excess,
+            "coupled_worst_eig": coupled_worst, "n_points": n_points, "n_starts": n_starts,
+            "box": [lo.tolist(), hi.tolist()]}

@@ -1,0 +1,130 @@
+"""Ctrl-C (SIGINT) and SIGTERM into a running ``lfd train``, during training and during the save:
+exit code 130, one line ``lfd: interrupted``, and no model file or temporary file left behind."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from lfd.demos import save_file, spiral
+
+ROOT = Path(__file__).resolve().parents[1]
+# Runs ``lfd train`` in a child that announces on stderr when it is training (in the training loop,
+# after two iterations) or saving (the whole payload written into the temporary file, before the
+# rename), then lingers there so the signal lands in that phase and nowhere else.
+CHILD = textwrap.dedent("""
+    import sys, time
+    import torch
+    import lfd.learners.node as node
+    from lfd.cli import main
+
+    phase, argv = sys.argv[1], sys.argv[2:]
+    if phase == "save":
+        real_save = torch.save
+        def save(obj, f, *args, **kwargs):
+            real_save(obj, f, *args, **kwargs)
+            f.flush()
+            print("PHASE", file=sys.stderr, flush=True)
+            time.sleep(60)
+        torch.save = save
+    else:
+        real_length = node.segment_length
+        said = []
+        def segment_length(config, k):
+            if k == 2 and not said:
+                said.append(k)
+                print("PHASE", file=sys.stderr, flush=True)
+                time.sleep(60)  # inside the training loop, without burning the CPU others need
+            return real_length(config, k)
+        node.segment_length = segment_length
+    sys.exit(main(argv))
+""")
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("sig") / "demos.npz"
+    save_file(spiral(n_demos=2, n_samples=40, seed=1), path)
+    return path
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("phase", ["train", "save"])
+def test_signal_to_this_process_exits_130_and_leaves_no_file(
+        demos: Path, tmp_path: Path, phase: str, sig: signal.Signals, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Every (signal, phase) pair in-process: ``main`` installs the handlers, the test process sends
+    the signal to itself from inside the training loop or from inside the save."""
+    import torch
+
+    import lfd.learners.node as node
+    from lfd.cli import main
+
+    if phase == "save":
+        real_save = torch.save
+
+        def save(obj, f, *args, **kwargs):  # type: ignore[no-untyped-def]
+            real_save(obj, f, *args, **kwargs)
+            assert [p.name for p in out.parent.iterdir()][0].endswith(".tmp")  # mid-save indeed
+            os.kill(os.getpid(), sig)
+
+        monkeypatch.setattr(torch, "save", save)
+    else:
+        real_length = node.segment_length
+
+        def segment_length(config, k):  # type: ignore[no-untyped-def]
+            if k == 2:
+                os.kill(os.getpid(), sig)
+            return real_length(config, k)
+
+        monkeypatch.setattr(node, "segment_length", segment_length)
+    out = tmp_path / "models" / "m.pt"
+    out.parent.mkdir()
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    code = main(["train", "--demos", str(demos), "--out", str(out), "--iters", "50" if phase == "train" else "3",
+                 "--hidden", "4", "--quiet"])
+    assert code == 130 and capsys.readouterr() == ("", "lfd: interrupted\n")
+    assert list(out.parent.iterdir()) == []  # no model, no hidden .tmp
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before  # restored
+
+
+def test_signals_exit_130_and_leave_no_file(demos: Path, tmp_path: Path) -> None:
+    """Real child processes: Ctrl-C (SIGINT) during training and SIGTERM during the save, run
+    concurrently (each child pays seconds of imports; the other two pairs are covered in-process)."""
+    cases = [(signal.SIGINT, "train"), (signal.SIGTERM, "save")]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    children = []
+    try:
+        for sig, phase in cases:
+            out = tmp_path / f"{sig.name}-{phase}" / "m.pt"
+            out.parent.mkdir()
+            iters = "100000" if phase == "train" else "3"
+            argv = ["train", "--demos", str(demos), "--out", str(out), "--iters", iters, "--hidden", "4",
+                    "--quiet"]
+            proc = subprocess.Popen([sys.executable, "-c", CHILD, phase, *argv], stderr=subprocess.PIPE,
+                                    stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env)
+            children.append((sig, phase, out, proc))
+        for sig, phase, out, proc in children:
+            line = proc.stderr.readline()  # blocks until the child is in the phase (or dies)
+            assert line.strip() == "PHASE", f"{sig.name} {phase}: " + line + proc.stderr.read()
+            if phase == "save":
+                assert [p.name for p in out.parent.iterdir()][0].endswith(".tmp")  # mid-save indeed
+            proc.send_signal(sig)
+        for sig, phase, out, proc in children:
+            rest = proc.stderr.read()
+            code = proc.wait(timeout=120)
+            assert (code, rest) == (130, "lfd: interrupted\n"), f"{sig.name} {phase}: {code} {rest}"
+            assert proc.stdout.read() == ""
+            assert list(out.parent.iterdir()) == [], f"{sig.name} {phase}"  # no model, no hidden .tmp
+    finally:
+        for *_, proc in children:
+            proc.kill()
+            proc.wait()
+            proc.stdout.close()
+            proc.stderr.close()

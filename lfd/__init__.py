@@ -11,7 +11,8 @@ import os
 
 # MKL's conditional numerical reproducibility: without it, small matrix products take alignment-
 # dependent code paths and a contraction fit differed in the 11th digit in 1 of 8 processes; with
-# it 10 of 10 agreed bit for bit. Must be set before torch loads MKL (import lfd before torch).
+# it 10 of 10 agreed in one series, but a later pair of processes still differed: another source
+# remains. Must be set before torch loads MKL (import lfd before torch).
 os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
 from typing import TYPE_CHECKING, Any
 

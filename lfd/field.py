@@ -16,6 +16,14 @@ from torchdiffeq import odeint
 from lfd.normalization import Normalization
 
 
+def cached_point_fn(field: Any) -> Callable[..., np.ndarray]:
+    """``field.point_fn()``, built on first use and kept on the field (``field(x)`` on one point)."""
+    fn = field.__dict__.get("_point")
+    if fn is None:
+        fn = field.__dict__["_point"] = field.point_fn()
+    return fn
+
+
 class VelocityField:
     """A learned autonomous velocity field x -> dx/dt.
 
@@ -70,10 +78,7 @@ class VelocityField:
         if x.shape[-1] != self.dim:
             raise ValueError(f"field expects points of dimension {self.dim}, got shape {x.shape}")
         if x.ndim == 1:
-            fn = self.__dict__.get("_point")
-            if fn is None:
-                fn = self.__dict__["_point"] = self.point_fn()
-            return fn(x)
+            return cached_point_fn(self)(x)
         with torch.no_grad():
             return self.torch(torch.from_numpy(x)).numpy()
 

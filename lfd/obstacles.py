@@ -58,6 +58,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from lfd.errors import ConfigError
+from lfd.field import cached_point_fn
 
 __all__ = ["Obstacle", "Sphere", "Box", "Capsule", "AvoidingField", "avoid", "parse_obstacle"]
 
@@ -749,10 +750,7 @@ class AvoidingField:
         if x.shape[-1] != self.dim:
             raise ValueError(f"field expects points of dimension {self.dim}, got shape {x.shape}")
         if x.ndim == 1:
-            fn = self.__dict__.get("_point")
-            if fn is None:
-                fn = self.__dict__["_point"] = self.point_fn()
-            return fn(x, t)
+            return cached_point_fn(self)(x, t)
         flat = x.reshape(-1, self.dim)
         v = self.field(flat, t) if self._time_varying else self.field(flat)
         return self.modulate(flat, np.asarray(v, dtype=np.float64), t).reshape(x.shape)

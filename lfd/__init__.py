@@ -9,10 +9,11 @@ from __future__ import annotations
 import importlib
 import os
 
-# MKL's conditional numerical reproducibility: without it, small matrix products take alignment-
-# dependent code paths and a contraction fit differed in the 11th digit in 1 of 8 processes; with
-# it 10 of 10 agreed in one series, but a later pair of processes still differed: another source
-# remains. Must be set before torch loads MKL (import lfd before torch).
+# Cross-process reproducibility. MKL picks alignment-dependent code paths: numpy buffers are only
+# 16-byte aligned and their alignment varies between processes (measured: 1 of 8 hash seeds changed
+# a contraction fit in the 8th digit, through the lstsq of its initial A). The learners therefore copy
+# numpy input into torch's 64-byte-aligned memory (torch.tensor, not from_numpy), and MKL's
+# conditional numerical reproducibility is asked for here, before torch loads MKL.
 os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
 from typing import TYPE_CHECKING, Any
 

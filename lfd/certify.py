@@ -314,7 +314,7 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
         pts = grid(clo, chi, samples)
         per_axis = max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / d) - 1e-9))
         with np.errstate(all="ignore"):
-            xn_all = torch.from_numpy(field.norm.to_norm(pts))
+            xn_all = torch.tensor(field.norm.to_norm(pts))
         bound = -2.0 * rate
         worst, where, invalid, slack_max, excess = -math.inf, 0, 0, 0.0, -math.inf
         a, b = math.inf, -math.inf

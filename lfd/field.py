@@ -80,7 +80,7 @@ class VelocityField:
         if x.ndim == 1:
             return cached_point_fn(self)(x)
         with torch.no_grad():
-            return self.torch(torch.from_numpy(x)).numpy()
+            return self.torch(torch.tensor(x)).numpy()
 
     def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4",
                 substeps: int = 1) -> np.ndarray:
@@ -95,7 +95,7 @@ class VelocityField:
         if method in ("rk4", "euler", "midpoint", "explicit_adams", "implicit_adams") and substeps > 1:
             options = {"step_size": float(np.min(np.diff(t))) / substeps}
         with torch.no_grad():
-            y = self.rollout_torch(torch.from_numpy(np.atleast_2d(x0)), torch.from_numpy(t),
+            y = self.rollout_torch(torch.tensor(np.atleast_2d(x0)), torch.tensor(t),
                                    method, options).numpy()
         return y[0] if single else y
 

@@ -422,8 +422,8 @@ def _rollout_sample_units(field: VelocityField, x0: np.ndarray, h: np.ndarray, n
     import torch
     from torchdiffeq import odeint
 
-    hs = torch.from_numpy(np.ascontiguousarray(h, dtype=np.float64))
-    xn0 = field.norm.to_norm_torch(torch.from_numpy(np.asarray(x0, dtype=np.float64)))
+    hs = torch.tensor(np.ascontiguousarray(h, dtype=np.float64))
+    xn0 = field.norm.to_norm_torch(torch.tensor(np.asarray(x0, dtype=np.float64)))
     with torch.no_grad():
         yn = odeint(lambda _tau, y: field.module(y) * hs, xn0,
                     torch.arange(n, dtype=torch.float64), method=method)

@@ -174,23 +174,31 @@ def test_second_run_resumes_and_recomputes_only_a_missing_cell(quick: dict[str, 
     assert (cache / "dmp__Sine__seed0.json").is_file()
     before = {f"{c['learner']}{c['shape']}": c["train"] for c in quick["json"]["results"]}
     after = {f"{c['learner']}{c['shape']}": c["train"] for c in r["results"]}
-    assert after == before                                  # the DMP is deterministic too
+    assert after.keys() == before.keys()                    # the DMP is deterministic too (another
+    for k in after:                                         # process: equal to a tolerance)
+        x, y = _numbers(after[k]), _numbers(before[k])
+        assert x.keys() == y.keys()
+        np.testing.assert_allclose([x[n] for n in x], [y[n] for n in x], rtol=1e-9, atol=1e-12, err_msg=k)
 
 
-def test_same_seed_gives_the_same_numbers_in_process(quick: dict[str, Any], tmp_path: Path) -> None:
-    argv = ["bench", "lasa", "--learner", "contraction", "--quick", "--shapes", "Angle", "--workers", "1",
-            "--json", str(tmp_path / "a.json"), "--report", str(tmp_path / "a.md")]
-    assert main(argv) == 0
-    again = json.loads((tmp_path / "a.json").read_text())["results"][0]
+def test_same_seed_gives_the_same_numbers(quick: dict[str, Any], tmp_path: Path) -> None:
+    """One cell twice in this process: the same bits. Against the fixture's run in a worker
+    process: the same numbers to 1e-6 (a cross-process comparison, so a tolerance; before the
+    contraction learner stopped using LAPACK's lstsq, 1 of 8 processes differed by 1.6%)."""
+    runs = []
+    for name in ("a", "b"):
+        argv = ["bench", "lasa", "--learner", "contraction", "--quick", "--shapes", "Angle", "--workers", "1",
+                "--json", str(tmp_path / f"{name}.json"), "--report", str(tmp_path / f"{name}.md")]
+        assert main(argv) == 0
+        runs.append(json.loads((tmp_path / f"{name}.json").read_text())["results"][0])
     first = next(c for c in quick["json"]["results"]
                  if c["learner"] == "contraction" and c["shape"] == "Angle")
-    assert again["hash"] == first["hash"] and again["config"] == first["config"]
-    # equal to 1e-8: float64 reductions in torch kernels are not bitwise reproducible across runs
-    # (measured: the loss differs in the 11th digit), so the numbers are compared, not the bits
+    assert runs[0]["hash"] == first["hash"] and runs[0]["config"] == first["config"]
     for key in ("train", "per_demo", "convergence"):
-        a, b = _numbers(again[key]), _numbers(first[key])
-        assert a.keys() == b.keys()
-        np.testing.assert_allclose([a[k] for k in a], [b[k] for k in a], rtol=1e-8, atol=1e-12, err_msg=key)
+        a, b, c = _numbers(runs[0][key]), _numbers(runs[1][key]), _numbers(first[key])
+        assert a == b, key
+        assert a.keys() == c.keys() and len(a) > 3
+        np.testing.assert_allclose([a[k] for k in a], [c[k] for k in a], rtol=1e-6, atol=1e-12, err_msg=key)
 
 
 def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:

@@ -85,8 +85,8 @@ class FieldModel:
     def _solve(self, x0: np.ndarray, t: np.ndarray, what: str, fallback_step: float) -> np.ndarray:
         """x(t) from x0, shape (B, d), at times t, shape (n,) (t[0] = 0): shape (B, n, d)."""
         norm, module = self.field.norm, self.field.module
-        xn0 = torch.from_numpy(norm.to_norm(x0))
-        tt = torch.from_numpy(np.asarray(t, dtype=np.float64))
+        xn0 = torch.tensor(norm.to_norm(x0))
+        tt = torch.tensor(np.asarray(t, dtype=np.float64))
 
         def f(_t: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
             return module(y)

@@ -189,7 +189,12 @@ class ContractionModule(nn.Module):
         eigenvalues clipped below at 1e-3. With phi = identity, f(x) = A x then starts as the
         best linear contracting field (up to that projection).
         """
-        a_ls = torch.linalg.lstsq(x, v).solution.T
+        # normal equations summed by torch, not LAPACK's least squares: MKL's gelsy took a
+        # process-dependent path (2 distinct results in 8 runs on the same data), and L-BFGS turned
+        # that last-bit difference into 3e-8 relative in a trained model
+        gram = (x[:, :, None] * x[:, None, :]).sum(0)               # X'X, (d, d)
+        cross = (x[:, :, None] * v[:, None, :]).sum(0)              # X'V, (d, d)
+        a_ls = torch.linalg.solve(gram, cross).T                     # v ~ A_ls x
         self.skew.copy_((a_ls - a_ls.T) / 4)           # W = skew(A_ls) / 2, so W - W' = skew(A_ls)
         if self.damping is not None:
             eye = torch.eye(self.dim, dtype=x.dtype)
@@ -308,7 +313,7 @@ class ContractionField(VelocityField):
         x = np.asarray(x, dtype=np.float64)
         if x.shape[-1] != self.dim:
             raise ValueError(f"metric expects points of dimension {self.dim}, got shape {x.shape}")
-        xn = torch.from_numpy(self.norm.to_norm(x.reshape(-1, self.dim)))
+        xn = torch.tensor(self.norm.to_norm(x.reshape(-1, self.dim)))
         with torch.no_grad():
             m = self.module.metric(xn).numpy()
         return m.reshape(*x.shape, self.dim) / self.norm.scale ** 2
@@ -319,8 +324,8 @@ class ContractionField(VelocityField):
         Returns shape (B, T, d) in user units.
         """
         x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
-        tt = torch.from_numpy(np.broadcast_to(np.asarray(t, dtype=np.float64) - t[0], (len(x0), len(t))).copy())
-        xn = self.module.trajectory(torch.from_numpy(self.norm.to_norm(x0)), tt).numpy()
+        tt = torch.tensor(np.broadcast_to(np.asarray(t, dtype=np.float64) - t[0], (len(x0), len(t))).copy())
+        xn = self.module.trajectory(torch.tensor(self.norm.to_norm(x0)), tt).numpy()
         return self.norm.from_norm(xn)
 
     def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
@@ -397,7 +402,7 @@ class ContractionLearner(Learner):
         dtype = next(module.parameters()).dtype
 
         def tensor(a: np.ndarray) -> torch.Tensor:
-            return torch.as_tensor(a, dtype=dtype)
+            return torch.tensor(a, dtype=dtype)  # a copy: torch-aligned memory, so LAPACK takes one path in every process
 
         d, n0 = demos.dim, demos.n_demos
         # velocity matching: a fixed, seeded subsample of ``batch`` demo points

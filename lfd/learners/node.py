@@ -500,4 +500,4 @@ class NodeLearner(Learner):
         x, h = uniform_grid(demos, config.samples)
         if config.seg > x.shape[1]:
             raise ConfigError(f"node: seg ({config.seg}) exceeds the {x.shape[1]} samples per demo")
-        return fit_segments(module, torch.from_numpy(x), torch.from_numpy(h), config, progress)
+        return fit_segments(module, torch.tensor(x), torch.tensor(h), config, progress)

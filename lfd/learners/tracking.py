@@ -258,10 +258,10 @@ class TrackingField(VelocityField):
 
     def reference(self, s: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         """r(s) (or r(s | x0)) in user units: s : array, shape (P,) -> shape (P, d)."""
-        s = torch.as_tensor(np.atleast_1d(np.asarray(s, dtype=np.float64)))
+        s = torch.tensor(np.atleast_1d(np.asarray(s, dtype=np.float64)))
         delta = None
         if x0 is not None and self.conditioned:
-            delta = torch.from_numpy(np.broadcast_to(self.start_offset(x0)[0], (len(s), self.dim)).copy())
+            delta = torch.tensor(np.broadcast_to(self.start_offset(x0)[0], (len(s), self.dim)).copy())
         with torch.no_grad():
             return self.norm.from_norm(self.module.reference(s, delta)[0].numpy())
 
@@ -275,9 +275,9 @@ class TrackingField(VelocityField):
         sb = np.broadcast_to(np.asarray(s, dtype=np.float64), (len(xb),)).copy()
         delta = None
         if x0 is not None and self.conditioned:
-            delta = torch.from_numpy(np.broadcast_to(self.start_offset(x0)[0], xb.shape).copy())
+            delta = torch.tensor(np.broadcast_to(self.start_offset(x0)[0], xb.shape).copy())
         with torch.no_grad():
-            v, sd = self.module.velocity(torch.from_numpy(self.norm.to_norm(xb)), torch.from_numpy(sb), delta)
+            v, sd = self.module.velocity(torch.tensor(self.norm.to_norm(xb)), torch.tensor(sb), delta)
         v, sd = v.numpy() * self.norm.scale, sd.numpy()
         return (v[0], float(sd[0])) if single else (v, sd)  # type: ignore[return-value]
 
@@ -332,10 +332,10 @@ class TrackingField(VelocityField):
         elif method in ("rk4", "euler", "midpoint") and substeps > 1:
             options = {"step_size": float(np.min(np.diff(t))) / substeps}
         delta = self.start_offset(np.broadcast_to(xb if start is None else start, xb.shape))
-        sb = torch.from_numpy(np.broadcast_to(np.asarray(s0, dtype=np.float64), (len(xb),)).copy())
+        sb = torch.tensor(np.broadcast_to(np.asarray(s0, dtype=np.float64), (len(xb),)).copy())
         with torch.no_grad():
-            xs, ss = self._rollout_torch(torch.from_numpy(xb), torch.from_numpy(t),
-                                         None if delta is None else torch.from_numpy(delta), method, options, sb)
+            xs, ss = self._rollout_torch(torch.tensor(xb), torch.tensor(t),
+                                         None if delta is None else torch.tensor(delta), method, options, sb)
         xs, ss = xs.numpy(), ss.numpy()
         return (xs[0], ss[0]) if single else (xs, ss)
 
@@ -358,7 +358,7 @@ class TrackingField(VelocityField):
                       options: dict[str, Any] | None = None) -> torch.Tensor:
         """Integrate (x, s) from x0, shape (B, d), s = 0, over t, shape (T,): x, shape (B, T, d)."""
         delta = self.start_offset(x0.detach().numpy())
-        return self._rollout_torch(x0, t, None if delta is None else torch.from_numpy(delta), method, options)[0]
+        return self._rollout_torch(x0, t, None if delta is None else torch.tensor(delta), method, options)[0]
 
     def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1) -> np.ndarray:
         """Integrate (x, s) from x0, shape (B, d) or (d,), and s = 0 over t, shape (T,); returns x,
@@ -438,10 +438,10 @@ class TrackingLearner(Learner):
             gain = np.einsum("nmi,nj->mij", dev, dev[:, 0]) / (n - 1) @ inv
             dgain = np.einsum("nmi,nj->mij", ddev, dev[:, 0]) / (n - 1) @ inv
         with torch.no_grad():
-            module.ref.copy_(torch.from_numpy(ref))
-            module.dref.copy_(torch.from_numpy(dref))
-            module.gain.copy_(torch.from_numpy(gain))
-            module.dgain.copy_(torch.from_numpy(dgain))
+            module.ref.copy_(torch.tensor(ref))
+            module.dref.copy_(torch.tensor(dref))
+            module.gain.copy_(torch.tensor(gain))
+            module.dgain.copy_(torch.tensor(dgain))
             module.duration.fill_(float(np.mean(demos.t[:, -1] - demos.t[:, 0])))
         # residuals at the demo samples
         s_all = (demos.t - demos.t[:, :1]) / (demos.t[:, -1:] - demos.t[:, :1])
@@ -496,9 +496,9 @@ def check_tracking_contraction(field: TrackingField, lo: np.ndarray | None = Non
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     mod, k, d = field.module, field.rate, field.dim
     rng = np.random.default_rng(seed)
-    xn = torch.from_numpy(field.norm.to_norm(rng.uniform(lo, hi, size=(n_points, d))))
-    s = torch.from_numpy(rng.uniform(0.0, 1.0, n_points))
-    sdot = torch.from_numpy(rng.uniform(0.0, 2.0 / field.duration, n_points))
+    xn = torch.tensor(field.norm.to_norm(rng.uniform(lo, hi, size=(n_points, d))))
+    s = torch.tensor(rng.uniform(0.0, 1.0, n_points))
+    sdot = torch.tensor(rng.uniform(0.0, 2.0 / field.duration, n_points))
     jac = _batch_jacobian(lambda x: mod.driven(x, s, sdot), xn)                        # (P, d, d)
     worst = float(torch.linalg.eigvalsh((jac + jac.transpose(1, 2)) / 2).max())
     jc = _batch_jacobian(lambda x: mod.velocity(x, s)[0], xn)

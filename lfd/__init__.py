@@ -21,23 +21,24 @@ from lfd.errors import ConfigError, DemoError, LfdError, ModelError
 
 # public name -> the module that defines it
 _LAZY: dict[str, str] = {
-    "DemoSet": "lfd.demos", "LASA_SHAPES": "lfd.demos", "lasa": "lfd.demos", "load_demos": "lfd.demos",
-    "load_file": "lfd.demos", "spiral": "lfd.demos", "spiral3d": "lfd.demos",
+    "DemoSet": "lfd.demos", "lasa": "lfd.demos", "load_demos": "lfd.demos", "spiral": "lfd.demos",
+    "spiral3d": "lfd.demos",
     "VelocityField": "lfd.field",
     "LEARNERS": "lfd.learners", "get_learner": "lfd.learners", "load": "lfd.learners", "train": "lfd.learners",
     "Normalization": "lfd.normalization",
-    "Obstacle": "lfd.obstacles", "avoid": "lfd.obstacles", "parse_obstacle": "lfd.obstacles",
+    "Obstacle": "lfd.obstacles", "avoid": "lfd.obstacles",
 }
 
-_SUBMODULES = ("demos", "field", "learners", "normalization", "metrics", "modelfile", "certify",
+_SUBMODULES = ("demos", "field", "learners", "normalization", "metrics", "evaluation", "integrate", "io",
+               "threads", "modelfile", "certify",
                "plotting", "commands", "cli", "bench", "obstacles", "goal")
 
 if TYPE_CHECKING:
-    from lfd.demos import LASA_SHAPES, DemoSet, lasa, load_demos, load_file, spiral, spiral3d
+    from lfd.demos import DemoSet, lasa, load_demos, spiral, spiral3d
     from lfd.field import VelocityField
     from lfd.learners import LEARNERS, get_learner, load, train
     from lfd.normalization import Normalization
-    from lfd.obstacles import Obstacle, avoid, parse_obstacle
+    from lfd.obstacles import Obstacle, avoid
 
 
 def __getattr__(name: str) -> Any:
@@ -51,7 +52,6 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
-    "ConfigError", "DemoError", "DemoSet", "LASA_SHAPES", "LEARNERS", "LfdError", "ModelError",
-    "Normalization", "Obstacle", "VelocityField", "avoid", "get_learner", "lasa", "load", "load_demos",
-    "load_file", "parse_obstacle", "spiral", "spiral3d", "train",
+    "ConfigError", "DemoError", "DemoSet", "LEARNERS", "LfdError", "ModelError", "Normalization", "Obstacle",
+    "VelocityField", "avoid", "get_learner", "lasa", "load", "load_demos", "spiral", "spiral3d", "train",
 ]

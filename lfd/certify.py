@@ -1,8 +1,9 @@
 """An honest contraction certificate: analytic bounds where the model has them, a dense check of
 Eq. (C1) everywhere, and a verdict that is never stronger than what was shown.
 
-For a field dx/dt = f(x) and a metric M(x), the contraction condition with rate lambda (the paper's
-Eq. (17) with the metric's time derivative, Eq. (C1) of ``lfd.learners.contraction``) is
+For a field dx/dt = f(x) (the paper's Eq. (15)), whose virtual displacements obey d(dx)/dt = J_f dx
+(its Eq. (16)), and a metric M(x), the contraction condition with rate lambda (the paper's Eq. (17)
+with the metric's time derivative, Eq. (C1) of ``lfd.learners.contraction``) is
 
     Eq. (C1): Q(x) = J_f' M + M J_f + dM/dt <= -2 lambda M,   dM/dt = sum_k (dM/dx_k) f_k,
 
@@ -38,6 +39,11 @@ terms, never a fixed absolute number. Any NaN or inf at any point means NOT cert
 **Trajectories that leave the box.** Starts on the box (grid points, boundary included) are rolled
 out with RK4; those that leave the box are counted, and the grid is laid on the bounding box of the
 box and all those trajectories, so that the check covers where they go.
+
+References
+----------
+Lohmiller, W., Slotine, J.-J. E. (1998). On contraction analysis for non-linear systems.
+Automatica 34(6), 683-696. doi:10.1016/S0005-1098(98)00019-3
 """
 
 from __future__ import annotations
@@ -45,8 +51,9 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any, Callable
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -54,6 +61,7 @@ from torch.func import jvp
 
 from lfd.errors import ConfigError
 from lfd.field import VelocityField
+from lfd.threads import torch_threads
 
 DEFAULT_SAMPLES = 20_000
 DEFAULT_TOLERANCE = 0.0    # extra absolute slack (1/s) on top of the round-off slack Eq. (K2)
@@ -202,7 +210,8 @@ def generalized_eigenvalues(field: VelocityField, xn: torch.Tensor
         g = torch.linalg.eigvalsh(torch.where(bad[:, None, None], eye.expand_as(q), q))[:, -1]
         return (torch.where(bad, torch.full_like(g, math.inf), g), torch.ones(xn.shape[0], d, dtype=xn.dtype),
                 2 * jf_norm)
-    m, m_dot = jvp(metric_fn, (xn,), (f,))                               # M, dM/dt = (dM/dx) f
+    # torch.func.jvp is annotated as maybe returning 3 items (only with has_aux=True)
+    m, m_dot = cast(tuple[torch.Tensor, torch.Tensor], jvp(metric_fn, (xn,), (f,)))  # M, dM/dt = (dM/dx) f
     q = jf.transpose(1, 2) @ m + m @ jf + m_dot
     bad = (~torch.isfinite(m).flatten(1).all(1) | ~torch.isfinite(q).flatten(1).all(1)
            | ~torch.isfinite(f).all(1))
@@ -307,36 +316,14 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
     t0 = time.perf_counter()
     if hasattr(field, "contraction_property"):          # a phase-carrying field (``lfd.learners.tracking``)
         return _phase_certificate(field, lo, hi, samples, tolerance, t0)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # small per-point matrices: one thread is as fast and immune to oversubscription
-    try:
+    with torch_threads(1):  # small per-point matrices: one thread is as fast and immune to oversubscription
         n_starts, n_left, clo, chi, traj_finite = escaping_starts(field, lo, hi, rate)
         pts = grid(clo, chi, samples)
         per_axis = max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / d) - 1e-9))
         with np.errstate(all="ignore"):
             xn_all = torch.tensor(field.norm.to_norm(pts))
         bound = -2.0 * rate
-        worst, where, invalid, slack_max, excess = -math.inf, 0, 0, 0.0, -math.inf
-        a, b = math.inf, -math.inf
-        eps = float(np.finfo(np.float64).eps)
-        for start in range(0, len(pts), CHUNK):
-            with torch.no_grad():
-                g, eig_m, scale = generalized_eigenvalues(field, xn_all[start:start + CHUNK])
-            slack = SAFETY * eps * torch.nan_to_num(scale, nan=math.inf, posinf=math.inf) + tolerance
-            invalid += int((~torch.isfinite(g)).sum())
-            gi = torch.nan_to_num(g, nan=math.inf, posinf=math.inf)
-            i = int(torch.argmax(gi))
-            if float(gi[i]) > worst:
-                worst, where = float(gi[i]), start + i
-            finite_slack = slack[torch.isfinite(slack)]
-            if len(finite_slack):
-                slack_max = max(slack_max, float(finite_slack.max()))
-            excess = max(excess, float((gi - bound - slack).max()))
-            ok = torch.isfinite(eig_m).all(1)
-            if ok.any():
-                a, b = min(a, float(eig_m[ok, 0].min())), max(b, float(eig_m[ok, -1].max()))
-    finally:
-        torch.set_num_threads(threads)
+        worst, where, invalid, slack_max, excess, a, b = _scan(field, xn_all, bound, tolerance)
     has_metric = hasattr(field, "metric_normalized_torch")
     s2 = field.norm.scale ** 2 if has_metric else 1.0
     analytic = _analytic(field) if has_metric else None
@@ -378,6 +365,35 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
         n_points=int(len(pts)), per_axis=per_axis, n_invalid=invalid, n_starts=n_starts, n_left_box=n_left,
         box=[lo.tolist(), hi.tolist()], checked_box=[clo.tolist(), chi.tolist()],
         elapsed_s=time.perf_counter() - t0)
+
+
+def _scan(field: VelocityField, xn_all: torch.Tensor, bound: float,
+          tolerance: float) -> tuple[float, int, int, float, float, float, float]:
+    """Eq. (K1) at every grid point, in chunks of ``CHUNK``; xn_all : tensor, shape (P, d), normalised.
+
+    Returns (worst g, its index, the number of non-finite g, the largest finite slack of Eq. (K2),
+    max(g - bound - slack), and the smallest and largest eigenvalue of M_n over the valid points).
+    """
+    worst, where, invalid, slack_max, excess = -math.inf, 0, 0, 0.0, -math.inf
+    a, b = math.inf, -math.inf
+    eps = float(np.finfo(np.float64).eps)
+    for start in range(0, len(xn_all), CHUNK):
+        with torch.no_grad():
+            g, eig_m, scale = generalized_eigenvalues(field, xn_all[start:start + CHUNK])
+        slack = SAFETY * eps * torch.nan_to_num(scale, nan=math.inf, posinf=math.inf) + tolerance
+        invalid += int((~torch.isfinite(g)).sum())
+        gi = torch.nan_to_num(g, nan=math.inf, posinf=math.inf)
+        i = int(torch.argmax(gi))
+        if float(gi[i]) > worst:
+            worst, where = float(gi[i]), start + i
+        finite_slack = slack[torch.isfinite(slack)]
+        if len(finite_slack):
+            slack_max = max(slack_max, float(finite_slack.max()))
+        excess = max(excess, float((gi - bound - slack).max()))
+        ok = torch.isfinite(eig_m).all(1)
+        if ok.any():
+            a, b = min(a, float(eig_m[ok, 0].min())), max(b, float(eig_m[ok, -1].max()))
+    return worst, where, invalid, slack_max, excess, a, b
 
 
 def _phase_certificate(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,

@@ -19,7 +19,8 @@ import importlib
 import os
 import signal
 import sys
-from typing import Any, NoReturn, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any, NoReturn
 
 COMMANDS: list[str] = ["train", "eval", "plot", "bench", "certify", "export"]
 
@@ -111,7 +112,7 @@ class _DeferredInterrupts:
             os._exit(EXIT_INTERRUPTED)
         self.hit = True
 
-    def __enter__(self) -> "_DeferredInterrupts":
+    def __enter__(self) -> _DeferredInterrupts:
         try:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self.previous[sig] = signal.signal(sig, self._mark)
@@ -129,20 +130,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line ``argv`` (default: sys.argv[1:]); returns the exit code."""
     previous = install_signal_handlers()
     try:
+        return run_guarded(_main, argv, "lfd")
+    finally:
+        restore_signal_handlers(previous)
+
+
+def run_guarded(run: Callable[[Sequence[str] | None], int], argv: Sequence[str] | None, prog: str) -> int:
+    """``run(argv)``, with Ctrl-C (and SIGTERM, once the handlers are installed) ending in
+    ``<prog>: interrupted`` and exit code 130, and a reader that went away (``| head``) in a quiet
+    exit 141. Shared by ``lfd`` and ``scripts/demo_arm.py``."""
+    try:
         try:
-            code = _main(argv)
+            code = run(argv)
             sys.stdout.flush()
             return code
         except KeyboardInterrupt:
-            _say("lfd: interrupted")
+            _say(f"{prog}: interrupted")
             return EXIT_INTERRUPTED
-        except BrokenPipeError:  # ``lfd ... | head -1``: the reader has gone; end quietly
+        except BrokenPipeError:  # ``... | head -1``: the reader has gone; end quietly
             _silence_stdout()
             return EXIT_BROKEN_PIPE
     except KeyboardInterrupt:  # a second Ctrl-C while reporting the first
         return EXIT_INTERRUPTED
-    finally:
-        restore_signal_handlers(previous)
 
 
 def _main(argv: Sequence[str] | None) -> int:
@@ -157,12 +166,11 @@ def _main(argv: Sequence[str] | None) -> int:
             return int(e.code or 0) if not isinstance(e.code, str) else EXIT_USAGE
         for module in PRELOAD:
             importlib.import_module(module)
-    import torch
+    from lfd.threads import torch_threads
 
     # Small networks on a few cores: one intra-op thread is faster and avoids oversubscription
     # (measured: a spiral rollout 0.37 s on one thread, 3.7-31 s on two under load).
-    torch.set_num_threads(1)
-    with warnings.catch_warnings():
+    with torch_threads(1), warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
             return int(args._run(args))

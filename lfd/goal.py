@@ -21,12 +21,14 @@ interpolated by a monotone cubic (PCHIP, C1) and blended in from g0 over the fir
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
 from lfd.errors import ConfigError
+from lfd.field import FieldWrapper
 
 __all__ = ["MovingGoalField", "shift_goal", "follow_goal_path", "parse_goal_shift", "load_goal_path"]
 
@@ -43,7 +45,7 @@ def smooth_step(u: float) -> tuple[float, float]:
     return u * u * u * (10.0 + u * (-15.0 + 6.0 * u)), 30.0 * u * u * (1.0 - u) * (1.0 - u)
 
 
-class MovingGoalField:
+class MovingGoalField(FieldWrapper):
     """``field`` with its goal moved along g0 + delta(t): f_s(x, t) = f(x - delta(t)) + delta'(t).
 
     Parameters
@@ -63,10 +65,6 @@ class MovingGoalField:
         self.field = field
         self.shift = shift
         self._samples = np.atleast_2d(np.asarray(samples, dtype=np.float64))
-
-    @property
-    def dim(self) -> int:
-        return int(self.field.dim)
 
     @property
     def goal(self) -> np.ndarray:
@@ -95,14 +93,6 @@ class MovingGoalField:
             return base(x - delta) + rate
         return f
 
-    @property
-    def learner(self) -> str:
-        return str(getattr(self.field, "learner", type(self.field).__name__))
-
-    @property
-    def history(self) -> dict[str, Any]:
-        return dict(getattr(self.field, "history", {}))
-
     def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1) -> np.ndarray:
         """RK4 from x0, shape (B, d) or (d,), over t, shape (T,): returns (B, T, d) (or (T, d))."""
         from lfd.obstacles import AvoidingField
@@ -119,20 +109,20 @@ class MovingGoalField:
         return f"MovingGoalField({self.field!r})"
 
 
-def shift_goal(field: Any, t: float, dx: Sequence[float], blend: float = BLEND_S) -> MovingGoalField:
+def shift_goal(field: Any, t: float, dx: Sequence[float] | np.ndarray, blend: float = BLEND_S) -> MovingGoalField:
     """Move ``field``'s goal by ``dx`` (shape (d,)) [units], starting at time ``t`` [s] and blended
     over ``blend`` seconds: delta(t') = s((t' - t) / blend) dx. Peak extra speed 15/8 |dx| / blend."""
-    dx = np.asarray(dx, dtype=np.float64).reshape(-1)
-    if dx.size != field.dim or not np.all(np.isfinite(dx)):
-        raise ConfigError(f"goal shift must be {field.dim} finite numbers, got {dx.tolist()}")
+    dv = np.asarray(dx, dtype=np.float64).reshape(-1)
+    if dv.size != field.dim or not np.all(np.isfinite(dv)):
+        raise ConfigError(f"goal shift must be {field.dim} finite numbers, got {dv.tolist()}")
     if not (math.isfinite(t) and t >= 0 and math.isfinite(blend) and blend > 0):
         raise ConfigError(f"goal shift needs a time >= 0 and a blend > 0, got t={t}, blend={blend}")
     t0, T = float(t), float(blend)
 
     def shift(tt: float) -> tuple[np.ndarray, np.ndarray]:
         s, ds = smooth_step((tt - t0) / T)
-        return s * dx, (ds / T) * dx
-    return MovingGoalField(field, shift, np.stack([field.goal, field.goal + dx]))
+        return s * dv, (ds / T) * dv
+    return MovingGoalField(field, shift, np.stack([field.goal, field.goal + dv]))
 
 
 def follow_goal_path(field: Any, times: np.ndarray, goals: np.ndarray,
@@ -212,7 +202,8 @@ def load_goal_path(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     except ConfigError:
         raise
     except (ValueError, OSError, UnicodeDecodeError) as e:
-        raise ConfigError(f"goal path {p}: unreadable ({str(e).splitlines()[0][:80] if str(e) else type(e).__name__})") from None
+        raise ConfigError(f"goal path {p}: unreadable "
+                          f"({str(e).splitlines()[0][:80] if str(e) else type(e).__name__})") from None
     if t.ndim != 1 or x.ndim != 2 or x.shape[0] != t.size or x.shape[1] not in (2, 3):
         raise ConfigError(f"goal path {p}: expected t (T,) and x (T, 2 or 3), got {t.shape} and {x.shape}")
     if t.size < 2 or not np.all(np.isfinite(t)) or not np.all(np.isfinite(x)) or np.any(np.diff(t) <= 0):

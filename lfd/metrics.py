@@ -1,8 +1,8 @@
 """Metrics that compare a reproduced trajectory with a demonstration, and a field with demo velocities.
 
 Every curve is an array of shape (T, d); a pair of curves may differ in length where the
-metric allows it. The curve and velocity metrics are pure numpy/scipy and return Python floats;
-``reproduce``, ``evaluate`` and ``converged_fraction`` roll a field out first.
+metric allows it. Every metric is pure numpy/scipy and returns Python floats; rolling a field
+out and scoring it (``reproduce``, ``evaluate``, ``converged_fraction``) is ``lfd.evaluation``.
 
 Names and what they measure:
 
@@ -18,26 +18,20 @@ Names and what they measure:
   quadrilateral counted as the sum of its two lobes (never under-counts).
 - ``grid_starts`` / ``spurious_attractor_fraction``: the 35 x 35 grid of starts of CONDOR/PUMA.
 - ``velocity_rmse`` / ``cosine_error``: field values against demo velocities.
-- ``final_goal_distance`` / ``convergence_rate`` / ``converged_fraction``: reaching the goal.
-- ``reproduce`` / ``evaluate``: roll a field out from every demo start and score all of the above.
+- ``final_goal_distance`` / ``convergence_rate``: reaching the goal.
+- ``PER_DEMO_METRICS``: the names ``lfd.evaluation.evaluate`` scores per demo.
 """
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-if TYPE_CHECKING:
-    from lfd.demos import DemoSet
-    from lfd.field import VelocityField
-
 __all__ = [
-    "PER_DEMO_METRICS", "chamfer_dtwd", "chamfer_dtwd_std", "converged_fraction", "convergence_rate",
-    "cosine_error", "dtw", "dtw_per_sample", "dtw_step_for", "evaluate", "final_goal_distance", "frechet", "grid_starts",
-    "reproduce", "resample", "rmse", "spurious_attractor_fraction", "swept_area", "velocity_rmse",
+    "PER_DEMO_METRICS", "chamfer_dtwd", "chamfer_dtwd_std", "convergence_rate", "cosine_error", "dtw",
+    "dtw_per_sample", "dtw_step_for", "final_goal_distance", "frechet", "grid_starts", "resample", "rmse",
+    "spurious_attractor_fraction", "swept_area", "velocity_rmse",
 ]
 
 
@@ -244,6 +238,11 @@ def swept_area(a: np.ndarray, b: np.ndarray) -> float:
     -------
     float
         E, in the curves' units squared.
+
+    References
+    ----------
+    Khansari-Zadeh, S. M., Billard, A. (2011). Learning stable nonlinear dynamical systems with
+    Gaussian mixture models. IEEE Transactions on Robotics 27(5), 943-957. doi:10.1109/TRO.2011.2159412
     """
     a, b = _pair(a, b)
     if a.shape[1] != 2:
@@ -360,106 +359,7 @@ def spurious_attractor_fraction(final_points: np.ndarray, goal: np.ndarray, radi
     return 1.0 - convergence_rate(final_points, goal, radius)
 
 
-def converged_fraction(field: VelocityField, lo: np.ndarray, hi: np.ndarray, n: int,
-                       horizon: float, radius: float, seed: int = 0, n_steps: int = 200,
-                       method: str = "rk4") -> float:
-    """Fraction of n starts drawn uniformly in the box [lo, hi] (seeded) whose rollout of the
-    field ends within ``radius`` of ``field.goal`` after ``horizon`` seconds.
-
-    Starts x0 ~ U(lo, hi), shape (n, d), from ``np.random.default_rng(seed)``; rollouts over
-    t = linspace(0, horizon, n_steps) with ``field.rollout``; then ``convergence_rate``.
-    lo, hi : array, shape (d,).
-    """
-    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    if lo.shape != (field.dim,) or hi.shape != (field.dim,):
-        raise ValueError(f"box corners must have shape ({field.dim},), got {lo.shape} and {hi.shape}")
-    x0 = np.random.default_rng(seed).uniform(lo, hi, size=(n, field.dim))
-    with np.errstate(all="ignore"):
-        y = field.rollout(x0, np.linspace(0.0, horizon, n_steps), method=method)
-    return convergence_rate(y[:, -1], field.goal, radius)
-
-
-_FIXED_STEP = ("euler", "midpoint", "heun2", "heun3", "rk4")
 PER_DEMO_METRICS: tuple[str, ...] = (
     "rmse", "dtw", "chamfer_dtwd", "frechet", "swept_area", "velocity_rmse", "cosine_error",
     "final_goal_distance",
 )
-
-
-def reproduce(field: VelocityField, demos: DemoSet, method: str = "rk4") -> np.ndarray:
-    """Roll the field out from each demo's start over that demo's time grid.
-
-    y_i = rollout(x_i[0], t_i), shape (T, d), for each demo i. Demos that share a time grid
-    (t_i - t_i[0] equal) are integrated in one batch by ``field.rollout``. Demos on different
-    uniform grids t_i[k] = t_i[0] + k h_i (LASA) are batched too when the field keeps the base
-    ``VelocityField.rollout`` and a fixed-step method: in sample units tau = (t - t_i[0]) / h_i each obeys
-    dx/dtau = h_i f(x), and a fixed-step solver with step 1 in tau takes exactly the steps it
-    would take with step h_i in t. Returns shape (N, T, d); a diverging rollout holds inf/nan.
-    """
-    from lfd.field import VelocityField as Base
-
-    rel = demos.t - demos.t[:, :1]
-    h = rel[:, 1:2]
-    k = np.arange(demos.n_samples)
-    uniform = np.allclose(rel, h * k, rtol=0.0, atol=1e-9 * float(rel.max()))
-    base_rollout = (type(field).rollout is Base.rollout
-                    and type(field).rollout_torch is Base.rollout_torch)
-    if uniform and method in _FIXED_STEP and base_rollout:
-        return _rollout_sample_units(field, demos.x[:, 0], h, demos.n_samples, method)
-    out = np.empty_like(demos.x)
-    todo = list(range(demos.n_demos))
-    with np.errstate(all="ignore"):
-        while todo:
-            same = [j for j in todo if np.array_equal(rel[j], rel[todo[0]])]
-            out[same] = field.rollout(demos.x[same, 0], rel[todo[0]], method=method)
-            todo = [j for j in todo if j not in same]
-    return out
-
-
-def _rollout_sample_units(field: VelocityField, x0: np.ndarray, h: np.ndarray, n: int,
-                          method: str) -> np.ndarray:
-    """x0 : (N, d) starts, h : (N, 1) sample intervals -> (N, n, d): dx_n/dtau = h f_n(x_n)."""
-    import torch
-    from torchdiffeq import odeint
-
-    hs = torch.tensor(np.ascontiguousarray(h, dtype=np.float64))
-    xn0 = field.norm.to_norm_torch(torch.tensor(np.asarray(x0, dtype=np.float64)))
-    with torch.no_grad():
-        yn = odeint(lambda _tau, y: field.module(y) * hs, xn0,
-                    torch.arange(n, dtype=torch.float64), method=method)
-    return field.norm.from_norm_torch(yn).permute(1, 0, 2).numpy()
-
-
-def evaluate(field: VelocityField, demos: DemoSet, dtw_step: int = 1,
-             method: str = "rk4") -> dict[str, Any]:
-    """Score the field's reproductions of the demos (``reproduce``) against the demos.
-
-    For demo i with positions x_i, shape (T, d), and reproduction y_i, shape (T, d): position
-    metrics compare y_i with x_i, velocity metrics compare f(x_i) with the demo's smoothed
-    velocity, and final_goal_distance is |y_i[T-1] - demos.goal|. ``swept_area`` is reported
-    for 2-D demos only. Returns {"per_demo": [{metric: float}] * N, "mean": {metric: float}};
-    a diverged rollout scores inf on every position metric, and the mean carries it along.
-    DTW and Frechet run on every k-th sample, k = ``dtw_step_for(T, T, dtw_step)``: ``dtw_step``
-    unless the full T x T table would exceed MAX_DTW_CELLS.
-    """
-    if demos.dim != field.dim:
-        raise ValueError(f"demos are {demos.dim}-D but the field is {field.dim}-D")
-    names = [m for m in PER_DEMO_METRICS if m != "swept_area" or demos.dim == 2]
-    ys = reproduce(field, demos, method)
-    with np.errstate(all="ignore"):
-        fs = field(demos.x)
-    rows: list[dict[str, float]] = []
-    for x, xd, y, f in zip(demos.x, demos.xd, ys, fs):
-        row = {"velocity_rmse": velocity_rmse(f, xd), "cosine_error": cosine_error(f, xd)}
-        if np.isfinite(y).all():
-            k = dtw_step_for(len(y), len(x), dtw_step)
-            row.update(rmse=rmse(y, x), dtw=dtw(y, x, step=k), chamfer_dtwd=chamfer_dtwd(y, x),
-                       frechet=frechet(y[::k] if k > 1 else y, x[::k] if k > 1 else x),
-                       final_goal_distance=final_goal_distance(y, demos.goal))
-            if demos.dim == 2:
-                row["swept_area"] = swept_area(y, x)
-        else:
-            row.update({m: float("inf") for m in names if m not in row})
-        rows.append({m: float(row[m]) for m in names})
-    mean = {m: float(np.mean([r[m] for r in rows])) for m in names}
-    return {"per_demo": rows, "mean": mean}

@@ -1,4 +1,4 @@
-"""Model files: atomic writes, checksummed payloads, and loading that never executes code.
+"""Model files: checksummed payloads, written atomically (``lfd.io``), and loading that never executes code.
 
 A model file is a ``torch.save`` of a plain dict (strings, numbers, lists, tensors):
 ``{"format_version", "learner", "dim", "config", "normalization", "state_dict", "history",
@@ -15,77 +15,15 @@ import hashlib
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
-from typing import Any, BinaryIO, Callable
+from typing import Any
 
-from lfd.errors import ModelError, OutputError
+from lfd.errors import ModelError
+from lfd.io import atomic_write
 
 FORMAT_VERSION = 2
 REQUIRED_KEYS = ("format_version", "learner", "dim", "config", "normalization", "state_dict", "checksum")
 MAX_MODEL_BYTES = 2 * 1024**3  # refuse to unpickle larger files: no learner of ours comes near
-
-
-def atomic_write(path: str | os.PathLike, write: Callable[[BinaryIO], None]) -> None:
-    """Write through ``write(file)`` into a temporary file beside ``path``, fsync, then rename.
-
-    A crash, Ctrl-C or SIGTERM (see ``lfd.cli``) mid-write leaves any previous file at ``path``
-    untouched and removes the temporary file. An ``OSError`` names ``path``, not the temporary file.
-    """
-    p = Path(path)
-    tmp: str | None = None
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the usual permissions
-        os.replace(tmp, p)
-        tmp = None
-    except OSError as e:
-        raise OSError(e.errno, e.strerror or str(e), str(path)) from None
-    finally:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def check_writable(path: str | os.PathLike, what: str = "output") -> None:
-    """Raise ``OutputError`` unless a file could be written at ``path`` (checked before long work).
-
-    The path must not be a folder, and its folder (or the nearest existing parent, which
-    ``atomic_write`` creates the rest below) must accept a new file: probed by creating and
-    removing an empty temporary file, which also works for root and read-only mounts.
-    """
-    p = Path(path)
-    if p.is_dir():
-        raise OutputError(f"{path}: is a folder, not a file ({what})")
-    parent = p.parent
-    while not parent.exists():
-        if parent == parent.parent:
-            break
-        parent = parent.parent
-    if not parent.is_dir():
-        raise OutputError(f"{path}: cannot write ({parent} is not a folder)")
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".lfd-probe.", dir=parent)
-    except OSError as e:
-        raise OutputError(f"{path}: cannot write ({e.strerror or type(e).__name__})") from None
-    os.close(fd)
-    os.unlink(probe)
-
-
-def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
-    """Whether two paths name the same file (the same resolved path, or the same inode)."""
-    try:
-        if Path(a).resolve() == Path(b).resolve():
-            return True
-        return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 def _canonical(value: Any) -> str:

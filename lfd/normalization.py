@@ -25,7 +25,7 @@ class Normalization:
     scale: float
 
     @classmethod
-    def from_points(cls, x: np.ndarray, goal: np.ndarray) -> "Normalization":
+    def from_points(cls, x: np.ndarray, goal: np.ndarray) -> Normalization:
         """x : array, shape (..., d); goal : array, shape (d,)."""
         goal = np.asarray(goal, dtype=np.float64)
         s = float(np.max(np.abs(np.asarray(x) - goal)))
@@ -53,5 +53,5 @@ class Normalization:
         return {"goal": [float(g) for g in self.goal], "scale": float(self.scale)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Normalization":
+    def from_dict(cls, d: dict) -> Normalization:
         return cls(goal=np.asarray(d["goal"], dtype=np.float64), scale=float(d["scale"]))

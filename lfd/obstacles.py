@@ -52,13 +52,16 @@ References
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field as dc_field
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+from typing import Any
 
 import numpy as np
 
 from lfd.errors import ConfigError
-from lfd.field import cached_point_fn
+from lfd.field import FieldWrapper, cached_point_fn
+from lfd.integrate import rk4_step
 
 __all__ = ["Obstacle", "Sphere", "Box", "Capsule", "AvoidingField", "avoid", "parse_obstacle"]
 
@@ -121,17 +124,17 @@ class Obstacle:
             raise ConfigError(f"the reference point {ref.tolist()} is not inside the {self.describe()}")
 
     @staticmethod
-    def sphere(center: Sequence[float], radius: float, **kw: Any) -> "Sphere":
+    def sphere(center: Sequence[float], radius: float, **kw: Any) -> Sphere:
         """A ball (a disc in 2-D); see ``Sphere``."""
         return Sphere(center, radius, **kw)
 
     @staticmethod
-    def box(center: Sequence[float], half_sizes: Sequence[float], **kw: Any) -> "Box":
+    def box(center: Sequence[float], half_sizes: Sequence[float], **kw: Any) -> Box:
         """An axis-aligned box; see ``Box``."""
         return Box(center, half_sizes, **kw)
 
     @staticmethod
-    def capsule(a: Sequence[float], b: Sequence[float], radius: float, **kw: Any) -> "Capsule":
+    def capsule(a: Sequence[float], b: Sequence[float], radius: float, **kw: Any) -> Capsule:
         """The points within ``radius`` of the segment ab; see ``Capsule``."""
         return Capsule(a, b, radius, **kw)
 
@@ -527,7 +530,8 @@ class _Unit:
                 return g - 1.0, m0 / mn, m1 / mn, m2 / mn   # "sdf" in Gamma units: inv = 1
             inv = 1.0
         if not self.moving:
-            def geom(x0: float, x1: float, x2: float, t: float) -> tuple[float, ...]:
+            def geom(x0: float, x1: float, x2: float, t: float
+                     ) -> tuple[float, float, float, float, float, float, float]:
                 s, n0, n1, n2 = sdf(x0, x1, x2)
                 q0, q1, q2 = x0 - f0, x1 - f1, x2 - f2
                 qn = sqrt(q0 * q0 + q1 * q1 + q2 * q2) or 1.0
@@ -542,7 +546,8 @@ class _Unit:
             def offset(t: float) -> tuple[float, float, float]:
                 return _pad3(o.offset(t))
 
-        def geom_moving(x0: float, x1: float, x2: float, t: float) -> tuple[float, ...]:
+        def geom_moving(x0: float, x1: float, x2: float, t: float
+                        ) -> tuple[float, float, float, float, float, float, float]:
             d0, d1, d2 = offset(t)
             x0, x1, x2 = x0 - d0, x1 - d1, x2 - d2
             s, n0, n1, n2 = sdf(x0, x1, x2)
@@ -586,7 +591,7 @@ def _group(obstacles: list[Obstacle]) -> list[_Unit]:
         from scipy.optimize import minimize
 
         def worst(p: np.ndarray) -> float:
-            return max(float(o.gamma(p)) for o in members)
+            return max(float(o.gamma(p)) for o in members)  # noqa: B023 (only called in this iteration)
 
         start = np.mean([o.reference for o in members], axis=0)
         res = minimize(worst, start, method="Nelder-Mead",
@@ -620,7 +625,7 @@ def _kzb_weights(gammas: Sequence[float]) -> list[float]:
     return w
 
 
-class AvoidingField:
+class AvoidingField(FieldWrapper):
     """A velocity field modulated to avoid obstacles [1]_ (see the module docstring for the math).
 
     Parameters
@@ -651,11 +656,11 @@ class AvoidingField:
 
     def __init__(self, field: Any, obstacles: Sequence[Obstacle], reactivity: float = REACTIVITY,
                  min_goal_gamma: float = MIN_GOAL_GAMMA) -> None:
-        obstacles = list(obstacles)
+        obs: list[Obstacle] = list(obstacles)
         if isinstance(field, AvoidingField):  # avoid(avoid(f, A), B) == avoid(f, A + B)
-            obstacles = field.obstacles + obstacles
+            obs = field.obstacles + obs
             field = field.field
-        for i, o in enumerate(obstacles):
+        for i, o in enumerate(obs):
             if not isinstance(o, Obstacle):
                 raise ConfigError(f"obstacle {i} is a {type(o).__name__}, not an lfd Obstacle")
             if o.dim != field.dim:
@@ -663,10 +668,10 @@ class AvoidingField:
         if not (math.isfinite(reactivity) and reactivity > 0):
             raise ConfigError(f"reactivity must be > 0, got {reactivity}")
         self.field = field
-        self.obstacles = obstacles
+        self.obstacles: list[Obstacle] = obs
         self.reactivity = float(reactivity)
         self._time_varying = bool(getattr(field, "time_varying", False))
-        self.units = _group(obstacles)
+        self.units = _group(obs)
         goals = np.atleast_2d(field.goal_samples() if hasattr(field, "goal_samples") else field.goal)
         for u in self.units:
             g = np.min(u.geometry(goals, 0.0)[0]) if not u.moving else float("inf")
@@ -680,25 +685,11 @@ class AvoidingField:
                     raise ConfigError(f"goal lies inside obstacle {u.describe()} at t = 0")
 
     @property
-    def dim(self) -> int:
-        return int(self.field.dim)
-
-    @property
     def goal(self) -> np.ndarray:
         """The attractor, shape (d,), at t = 0."""
         return self.field.goal
 
-    @property
-    def learner(self) -> str:
-        """The nominal field's learner name (for plots and reports)."""
-        return str(getattr(self.field, "learner", type(self.field).__name__))
-
-    @property
-    def history(self) -> dict[str, Any]:
-        """The nominal field's training record."""
-        return dict(getattr(self.field, "history", {}))
-
-    def avoiding(self, obstacles: Sequence[Obstacle], **kw: Any) -> "AvoidingField":
+    def avoiding(self, obstacles: Sequence[Obstacle], **kw: Any) -> AvoidingField:
         """This field with more obstacles."""
         return AvoidingField(self, obstacles, **kw)
 
@@ -784,15 +775,10 @@ class AvoidingField:
         return out[0] if np.ndim(x0) == 1 else out
 
     def _rk4(self, x: np.ndarray, t0: float, t1: float, n: int) -> np.ndarray:
-        """n RK4 steps of the batch x, shape (B, d), from t0 to t1."""
+        """n classic RK4 steps (``lfd.integrate.rk4_step``) of the batch x, shape (B, d), from t0 to t1."""
         h = (t1 - t0) / n
         for s in range(n):
-            ts = t0 + s * h
-            k1 = self(x, ts)
-            k2 = self(x + 0.5 * h * k1, ts + 0.5 * h)
-            k3 = self(x + 0.5 * h * k2, ts + 0.5 * h)
-            k4 = self(x + h * k3, ts + h)
-            x = x + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+            x = rk4_step(self, x, t0 + s * h, h)
         return x
 
     # ---- single-point path
@@ -859,7 +845,7 @@ class AvoidingField:
         return f"AvoidingField({self.field!r}, {len(self.obstacles)} obstacles)"
 
 
-def avoid(field: Any, obstacles: Sequence[Obstacle] | Obstacle | str, **kw: Any) -> AvoidingField:
+def avoid(field: Any, obstacles: Sequence[Obstacle | str] | Obstacle | str, **kw: Any) -> AvoidingField:
     """``field`` modulated to avoid ``obstacles`` (Obstacle objects or ``parse_obstacle`` texts);
     see ``AvoidingField``. Raises ``ConfigError`` when the goal lies inside or too close to one."""
     if isinstance(obstacles, (Obstacle, str)):

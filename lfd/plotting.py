@@ -7,7 +7,7 @@ demos and draws into an Axes (or returns a Figure), so scripts can reuse any pie
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -16,12 +16,15 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FormatStrFormatter
 
 from lfd.demos import DemoSet
+from lfd.evaluation import reproduce
 from lfd.field import VelocityField
-from lfd.metrics import reproduce
 
-DEMO_STYLE = {"color": "0.15", "lw": 1.2, "alpha": 0.8}
-ROLLOUT_STYLE = {"color": "tab:red", "lw": 1.6}
-PERTURBED_STYLE = {"color": "tab:orange", "lw": 1.1, "ls": "--"}
+if TYPE_CHECKING:
+    from mpl_toolkits.mplot3d import Axes3D
+
+DEMO_STYLE: dict[str, Any] = {"color": "0.15", "lw": 1.2, "alpha": 0.8}
+ROLLOUT_STYLE: dict[str, Any] = {"color": "tab:red", "lw": 1.6}
+PERTURBED_STYLE: dict[str, Any] = {"color": "tab:orange", "lw": 1.1, "ls": "--"}
 
 
 def perturbed_starts(demos: DemoSet, n: int, spread: float = 0.1, seed: int = 0) -> np.ndarray:
@@ -107,8 +110,31 @@ def draw_paths_3d(ax: Any, field: VelocityField, demos: DemoSet, n_perturbed: in
     ax.legend(loc="upper left", fontsize=8)
 
 
-def draw_loss(ax: Axes, history: dict[str, Any]) -> None:
-    """Training loss per iteration, log scale; a note when the history has no loss."""
+def curriculum_stages(history: dict[str, Any], config: dict[str, Any] | None) -> list[tuple[int, int]]:
+    """The stages of a NODE's segment curriculum (``lfd.learners.node.segment_length``) over the
+    iterations in ``history``: [(first iteration, 1-based, segment length S)], one per S. Empty
+    for a learner without a curriculum (no ``seg``/``seg_start`` in ``config``) or a constant S."""
+    if not config or "seg" not in config or "seg_start" not in config:
+        return []
+    from types import SimpleNamespace
+
+    from lfd.learners.node import segment_length
+
+    n = len(history.get("loss") or [])
+    cfg = SimpleNamespace(curriculum=float(config.get("curriculum", 0.0)), iters=int(config.get("iters", n)),
+                          seg=int(config["seg"]), seg_start=int(config["seg_start"]))
+    stages: list[tuple[int, int]] = []
+    for k in range(n):
+        s = segment_length(cfg, k)  # type: ignore[arg-type]
+        if not stages or stages[-1][1] != s:
+            stages.append((k + 1, s))
+    return stages if len(stages) > 1 else []
+
+
+def draw_loss(ax: Axes, history: dict[str, Any], config: dict[str, Any] | None = None) -> None:
+    """Training loss per iteration, log scale; a note when the history has no loss. With a NODE's
+    ``config``, the stages of its segment curriculum are marked (dotted lines, S = samples per
+    segment, the ramp shaded): the loss jumps up where the segments lengthen, by design."""
     loss = np.asarray(history.get("loss") or [], dtype=np.float64)
     ok = np.isfinite(loss) & (loss > 0)
     if not ok.any():
@@ -121,6 +147,16 @@ def draw_loss(ax: Axes, history: dict[str, Any]) -> None:
     if loss[ok].max() < 10 * loss[ok].min():  # under a decade: label the ticks in plain numbers
         ax.yaxis.set_major_formatter(FormatStrFormatter("%.3g"))
         ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g"))
+    stages = curriculum_stages(history, config)
+    if stages:
+        ax.axvspan(stages[0][0], stages[-1][0], color="tab:purple", alpha=0.08,
+                   label=f"curriculum: segments lengthen S = {stages[0][1]} -> {stages[-1][1]} samples")
+        for k, _seg in stages[1:]:
+            ax.axvline(k, color="tab:purple", lw=0.7, ls=":")
+        for k, seg in stages:
+            ax.text(k, 0.98, f"S={seg}", transform=ax.get_xaxis_transform(), rotation=90, va="top",
+                    ha="right", fontsize=7, color="tab:purple")
+        ax.legend(loc="lower left", fontsize=8)
     ax.set_xlabel("iteration")
     ax.set_ylabel("loss")
     ax.set_title(f"training loss (final {loss[ok][-1]:.3g})", fontsize=10)
@@ -142,7 +178,7 @@ def field_figure(field: VelocityField, demos: DemoSet, n_perturbed: int = 8, spr
         ax = fig.add_subplot(gs[0, 0], projection="3d")
         draw_paths_3d(ax, field, demos, n_perturbed, spread, seed)
     ax.set_title(title or f"{field.learner} field on {demos.name}", fontsize=11)
-    draw_loss(fig.add_subplot(gs[0, 1]), field.history)
+    draw_loss(fig.add_subplot(gs[0, 1]), field.history, getattr(field, "config", None))
     return fig
 
 
@@ -158,4 +194,5 @@ def draw_obstacles(ax: Axes, obstacles: Any, t: float = 0.0) -> None:
             ax.fill(pts[order, 0], pts[order, 1], color="0.35", alpha=0.55, zorder=3, label=label)
             ax.plot(*ref, "+", color="white", ms=6, zorder=3)
         else:
-            ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=2, color="0.35", alpha=0.5, label=label)
+            cast("Axes3D", ax).scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=2, color="0.35", alpha=0.5,
+                                       label=label)   # 3-D axes here

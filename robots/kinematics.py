@@ -31,6 +31,14 @@ class Kinematics:
         self._jac = pin.computeFrameJacobian(self.model, self.data, q, self.frame_id, _LWA)
         self._pose = None
 
+    def update_position(self, q: np.ndarray) -> np.ndarray:
+        """``update(q)`` and the tool position, shape (3,), in one call (the control loop's FK)."""
+        model, data, fid = self.model, self.data, self.frame_id
+        self._jac = pin.computeFrameJacobian(model, data, q, fid, _LWA)
+        placement = pin.updateFramePlacement(model, data, fid)
+        self._pose = pose = (placement, placement.translation, placement.rotation)
+        return pose[1]
+
     def _placement(self) -> tuple[pin.SE3, np.ndarray, np.ndarray]:
         if self._pose is None:
             placement = pin.updateFramePlacement(self.model, self.data, self.frame_id)

@@ -7,6 +7,7 @@ Pinocchio frame ``ee_frame`` and checked against it; the scene (floor, lights, c
 from __future__ import annotations
 
 import importlib.metadata
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from robots import scene, sources
+from robots import scene, sources, visual
 from robots.errors import RobotError
 from robots.model import RobotModel
 
@@ -33,7 +34,7 @@ class _Source:
 
     name: str
     path: Path
-    ee_frame: str | None
+    ee_frame: str
     locked: dict[str, float] = field(default_factory=dict)
     q_home: tuple[float, ...] | None = None
     armature: float | None = None   # None keeps the file's value
@@ -46,7 +47,8 @@ def _example_robot_data() -> Path:
         dist = importlib.metadata.distribution("example-robot-data")
     except importlib.metadata.PackageNotFoundError:
         raise RobotError("robot 'panda' needs the example-robot-data package") from None
-    root = Path(dist.locate_file("cmeel.prefix/share/example-robot-data"))
+    # ignore: typeshed types locate_file as SimplePath; it returns a pathlib.Path
+    root = Path(dist.locate_file("cmeel.prefix/share/example-robot-data"))  # type: ignore[arg-type]
     if not root.is_dir():
         raise RobotError(f"example-robot-data files not found at {root}")
     return root
@@ -55,11 +57,13 @@ def _example_robot_data() -> Path:
 def _builtin(name: str) -> _Source:
     if name == "planar":
         return _Source("planar", ASSETS_DIR / "planar_arm.xml", "ee", q_home=(-1.0, 1.4, 1.2))
-    # Franka Panda: fingers locked fully open (0.04 m each); armature 0.1 kg m^2 and damping 1 N m s/rad per joint
+    # Franka Panda: fingers locked closed (they add 2 x 4.8 cm of width to the hand when open, which the
+    # tool-point obstacle margin would have to cover; closed, the fingertip geoms lie within 2.3 cm of the TCP);
+    # armature 0.1 kg m^2 and damping 1 N m s/rad per joint
     # (reflected rotor inertia and gear friction of the real arm's drives; they keep the 500 Hz servo loop stiff).
     urdf = _example_robot_data() / "robots" / "panda_description" / "urdf" / "panda.urdf"
     return _Source("panda", urdf, "panda_hand_tcp",
-                   locked={"panda_finger_joint1": 0.04, "panda_finger_joint2": 0.04},
+                   locked={"panda_finger_joint1": 0.0, "panda_finger_joint2": 0.0},
                    q_home=(0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4),
                    armature=0.1, damping=1.0)
 
@@ -174,6 +178,15 @@ def _camera(pin_model: pin.Model, frame_id: int, q_home: np.ndarray, planar: boo
     return eye, target
 
 
+def _table_extent(pin_model: pin.Model, frame_id: int, q_home: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi), shape (2,) each: the (x, y) rectangle of a table top under the base and the tool's
+    home position with 0.3 m to spare on every side."""
+    data = pin_model.createData()
+    pin.framesForwardKinematics(pin_model, data, q_home)
+    pts = np.array([data.oMi[1].translation[:2], data.oMf[frame_id].translation[:2]])
+    return pts.min(0) - 0.3, pts.max(0) + 0.3
+
+
 def _is_planar(pin_model: pin.Model, q: np.ndarray) -> bool:
     """All arm joints revolute about world z at q (then at every q: z axes stay z under rotations about z),
     so gravity does no work and the task is the (x, y) position."""
@@ -183,22 +196,19 @@ def _is_planar(pin_model: pin.Model, q: np.ndarray) -> bool:
     return bool(np.allclose(jac[[2, 3, 4]], 0.0, atol=1e-12) and np.allclose(np.abs(jac[5]), 1.0, atol=1e-12))
 
 
-def load_robot(spec: str, ee_frame: str | None = None, actuation: str = "position") -> RobotModel:
-    """Load an arm in MuJoCo and Pinocchio.
+def _resolve_visual(uri: str, urdf_dir: Path) -> Path:
+    try:
+        return sources._resolve_uri(uri, urdf_dir)
+    except RobotError as e:
+        raise ValueError(str(e)) from None
 
-    spec : "planar" | "panda" | path to a .urdf or MJCF .xml file
-    ee_frame : Pinocchio frame of the tool (default per built-in robot; required for a path)
-    actuation : "position" (PD servos + gravity compensation) or "torque" (motors, ctrl = joint torque)
+
+def _compile_arm(mj_spec: mujoco.MjSpec, source: _Source, joints: tuple[str, ...]
+                 ) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray]:
+    """Lock the source's fixed joints, set its armature and damping, and compile the bare arm.
+
+    Returns the MuJoCo model and, shape (n,) each, the qpos and dof addresses of ``joints``.
     """
-    if actuation not in ACTUATIONS:
-        raise RobotError(f"unknown actuation '{actuation}'; known: {', '.join(ACTUATIONS)}")
-    source = _resolve(spec, ee_frame)
-    kind = sources.source_kind(source.path)
-    mj_spec, assets = sources.urdf_spec(source.path) if kind == "urdf" else sources.mjcf_spec(source.path)
-    pin_model = sources.pinocchio_model(source.path, kind, source.locked)
-    frame_id = _frame_id(pin_model, source.ee_frame)
-    joints = tuple(pin_model.names[1:])
-
     sources.drop_joint_couplings(mj_spec, joints + tuple(source.locked))
     sources.lock_mujoco_joints(mj_spec, source.locked)
     for name in joints:
@@ -216,17 +226,13 @@ def load_robot(spec: str, ee_frame: str | None = None, actuation: str = "positio
         raise RobotError(f"MuJoCo cannot compile '{source.path}': {exc}") from None
     qpos_adr = np.array([mj_model.jnt_qposadr[mj_model.joint(j).id] for j in joints], dtype=int)
     dof_adr = np.array([mj_model.jnt_dofadr[mj_model.joint(j).id] for j in joints], dtype=int)
-    pin_model.armature = mj_model.dof_armature[dof_adr].copy()
-    pin_model.damping = mj_model.dof_damping[dof_adr].copy()
+    return mj_model, qpos_adr, dof_adr
 
-    q_min, q_max, v_max = _limits(pin_model)
-    planar = _is_planar(pin_model, (q_min + q_max) / 2)
-    if source.q_home is None:
-        q_home = _auto_home(pin_model, frame_id, q_min, q_max, planar)
-    else:
-        q_home = np.array(source.q_home, dtype=float)
 
-    mj_ee_site = _place_ee_site(mj_spec, mj_model, pin_model, frame_id, qpos_adr, q_home)
+def _servo_gains(mj_model: mujoco.MjModel, pin_model: pin.Model, joints: tuple[str, ...], qpos_adr: np.ndarray,
+                 dof_adr: np.ndarray, q_home: np.ndarray) -> list[tuple[float, float, float]]:
+    """(kp, kv, force limit) per arm joint: the source's own position servo where it has one, else
+    kp = M_ii(q_home) w^2 and kv = 2 zeta w M_ii (``robots.scene``), limited by the URDF effort."""
     mj_data = mujoco.MjData(mj_model)
     _set_qpos(mj_model, mj_data, qpos_adr, q_home)
     mujoco.mj_fwdPosition(mj_model, mj_data)
@@ -242,14 +248,68 @@ def load_robot(spec: str, ee_frame: str | None = None, actuation: str = "positio
             gains.append((diag[i] * w * w, 2 * z * w * diag[i], effort))
         else:
             gains.append((found[0], found[1], min(found[2], effort)))
-    scene.add_actuators(mj_spec, joints, actuation, q_min, q_max, gains)
-    scene.add_environment(mj_spec, *_camera(pin_model, frame_id, q_home, planar))
+    return gains
+
+
+def _build_scene(mj_spec: mujoco.MjSpec, assets: dict[str, bytes], source: _Source, pin_model: pin.Model,
+                 frame_id: int, joints: tuple[str, ...], actuation: str, q_home: np.ndarray,
+                 limits: tuple[np.ndarray, np.ndarray], gains: list[tuple[float, float, float]],
+                 table: bool) -> tuple[str, mujoco.MjModel]:
+    """Add actuators, floor, lights, camera (and a table) to the arm; returns the exact MJCF and its model."""
+    planar = _is_planar(pin_model, (limits[0] + limits[1]) / 2)
+    scene.add_actuators(mj_spec, joints, actuation, limits[0], limits[1], gains)
+    scene.add_environment(mj_spec, *_camera(pin_model, frame_id, q_home, planar),
+                          floor_z=-scene.TABLE_HEIGHT if table else 0.0)
+    if table:
+        scene.add_table(mj_spec, *_table_extent(pin_model, frame_id, q_home))
     try:
         compiled = mj_spec.compile()
         mjcf_xml = scene.exact_xml(mj_spec, compiled)
-        mj_model = mujoco.MjModel.from_xml_string(mjcf_xml, assets)
+        return mjcf_xml, mujoco.MjModel.from_xml_string(mjcf_xml, assets)
     except ValueError as exc:
         raise RobotError(f"MuJoCo cannot compile the scene of '{source.path}': {exc}") from None
+
+
+def load_robot(spec: str, ee_frame: str | None = None, actuation: str = "position", visuals: bool = True,
+               table: bool = False) -> RobotModel:
+    """Load an arm in MuJoCo and Pinocchio.
+
+    spec : "planar" | "panda" | path to a .urdf or MJCF .xml file
+    ee_frame : Pinocchio frame of the tool (default per built-in robot; required for a path)
+    actuation : "position" (PD servos + gravity compensation) or "torque" (motors, ctrl = joint torque)
+    visuals : draw a URDF's <visual> meshes (COLLADA converted once into a user cache, see
+        ``robots.visual``); False draws the collision meshes, a colour per link. They never collide.
+    table : add a table under the robot's workspace (drawn only: it does not collide)
+    """
+    if actuation not in ACTUATIONS:
+        raise RobotError(f"unknown actuation '{actuation}'; known: {', '.join(ACTUATIONS)}")
+    source = _resolve(spec, ee_frame)
+    kind = sources.source_kind(source.path)
+    mj_spec, assets = sources.urdf_spec(source.path) if kind == "urdf" else sources.mjcf_spec(source.path)
+    if kind == "urdf":
+        report = visual.add_visuals(mj_spec, source.path, assets, _resolve_visual, enabled=visuals)
+        if report.fallback:
+            first = next(iter(report.fallback.items()))
+            warnings.warn(f"{source.name}: {len(report.fallback)} link(s) drawn with their collision meshes "
+                          f"({first[0]}: {first[1]})", RuntimeWarning, stacklevel=2)
+    pin_model = sources.pinocchio_model(source.path, kind, source.locked)
+    frame_id = _frame_id(pin_model, source.ee_frame)
+    joints = tuple(pin_model.names[1:])
+    mj_model, qpos_adr, dof_adr = _compile_arm(mj_spec, source, joints)
+    pin_model.armature = mj_model.dof_armature[dof_adr].copy()
+    pin_model.damping = mj_model.dof_damping[dof_adr].copy()
+
+    q_min, q_max, v_max = _limits(pin_model)
+    planar = _is_planar(pin_model, (q_min + q_max) / 2)
+    if source.q_home is None:
+        q_home = _auto_home(pin_model, frame_id, q_min, q_max, planar)
+    else:
+        q_home = np.array(source.q_home, dtype=float)
+
+    mj_ee_site = _place_ee_site(mj_spec, mj_model, pin_model, frame_id, qpos_adr, q_home)
+    gains = _servo_gains(mj_model, pin_model, joints, qpos_adr, dof_adr, q_home)
+    mjcf_xml, mj_model = _build_scene(mj_spec, assets, source, pin_model, frame_id, joints, actuation, q_home,
+                                      (q_min, q_max), gains, table)
 
     robot = RobotModel(
         name=source.name, mjcf_xml=mjcf_xml, mj_assets=assets, mj_model=mj_model, pin_model=pin_model,

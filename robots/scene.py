@@ -16,6 +16,7 @@ import numpy as np
 SERVO_OMEGA = 60.0
 SERVO_ZETA = 1.0
 TIMESTEP = 0.002
+FLOOR_HALF_M = 4.0   # the drawn floor is 8 m x 8 m
 
 
 def source_servo_gains(model: mujoco.MjModel, joint: str) -> tuple[float, float, float] | None:
@@ -69,33 +70,64 @@ def _look_at_quat(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     return quat
 
 
-def add_environment(spec: mujoco.MjSpec, eye: np.ndarray, target: np.ndarray) -> None:
-    """Floor (unless the source has a geom 'floor'), sky, two lights, the camera 'workspace' and render buffer size."""
+def add_environment(spec: mujoco.MjSpec, eye: np.ndarray, target: np.ndarray, floor_z: float = 0.0) -> None:
+    """Floor at height ``floor_z`` (unless the source has a geom 'floor': a colliding plane, hidden, and a
+    thin box that draws it), sky, three lights (a key light
+    from above the front, a fill light and a rim light from behind), the camera 'workspace' and render
+    buffer size."""
     spec.option.timestep = TIMESTEP
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.visual.global_.offwidth = 1280
     spec.visual.global_.offheight = 960
-    spec.visual.headlight.ambient = [0.15, 0.15, 0.15]
-    spec.visual.headlight.diffuse = [0.35, 0.35, 0.35]
+    spec.visual.headlight.ambient = [0.25, 0.25, 0.25]
+    spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
     spec.visual.headlight.specular = [0.1, 0.1, 0.1]
     world = spec.worldbody
     if spec.geom("floor") is None:
         spec.add_texture(name="floor_grid", type=mujoco.mjtTexture.mjTEXTURE_2D,
                          builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=512, height=512,
-                         rgb1=[0.50, 0.53, 0.57], rgb2=[0.40, 0.43, 0.47],
+                         rgb1=[0.62, 0.65, 0.70], rgb2=[0.50, 0.53, 0.58],
                          mark=mujoco.mjtMark.mjMARK_EDGE, markrgb=[0.62, 0.64, 0.67])
         material = spec.add_material(name="floor_grid", texrepeat=[8, 8], texuniform=True, reflectance=0.05)
         material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "floor_grid"
+        # The plane collides and is hidden (group 3); a thin box draws the floor: a software renderer
+        # (llvmpipe) took ~2x the frame time over an infinite plane's many lit quads.
         world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05],
-                       material="floor_grid", contype=1, conaffinity=1)
+                       pos=[0.0, 0.0, floor_z], material="floor_grid", contype=1, conaffinity=1, group=3)
+        world.add_geom(name="floor_visual", type=mujoco.mjtGeom.mjGEOM_BOX, size=[FLOOR_HALF_M, FLOOR_HALF_M, 0.005],
+                       pos=[0.0, 0.0, floor_z - 0.005], material="floor_grid", contype=0, conaffinity=0)
     spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
                      builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT, width=256, height=256,
                      rgb1=[0.55, 0.65, 0.8], rgb2=[0.95, 0.95, 0.97])
     world.add_light(name="key", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[0.5, -1.0, 3.0],
-                    dir=[-0.15, 0.3, -1.0], diffuse=[0.55, 0.55, 0.55], castshadow=True)
+                    dir=[-0.15, 0.3, -1.0], diffuse=[0.6, 0.6, 0.6], castshadow=True)
     world.add_light(name="fill", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[-1.0, 1.0, 2.0],
-                    dir=[0.4, -0.4, -1.0], diffuse=[0.2, 0.2, 0.2], castshadow=False)
+                    dir=[0.4, -0.4, -1.0], diffuse=[0.25, 0.25, 0.25], castshadow=False)
+    world.add_light(name="rim", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[-1.5, 0.0, 1.5],
+                    dir=[1.0, 0.0, -0.6], diffuse=[0.15, 0.15, 0.17], specular=[0.2, 0.2, 0.2],
+                    castshadow=False)
     world.add_camera(name="workspace", pos=eye, quat=_look_at_quat(eye, target), fovy=45.0)
+
+
+TABLE_HEIGHT = 0.75   # m: the table top is at z = 0 (the robot's base), the floor this far below
+
+
+def add_table(spec: mujoco.MjSpec, lo: np.ndarray, hi: np.ndarray) -> None:
+    """A wooden table whose top, 4 cm thick, covers the (x, y) rectangle [lo, hi] with its upper face
+    at z = 0 (where the robot stands); the top collides like the floor did, the legs are drawn only."""
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    c, half = (lo + hi) / 2, (hi - lo) / 2
+    spec.add_material(name="table_wood", rgba=[0.55, 0.38, 0.24, 1.0], specular=0.2, shininess=0.3)
+    spec.add_material(name="table_leg", rgba=[0.25, 0.25, 0.27, 1.0], specular=0.4, shininess=0.5)
+    world = spec.worldbody
+    world.add_geom(name="table_top", type=mujoco.mjtGeom.mjGEOM_BOX, size=[half[0], half[1], 0.02],
+                   pos=[c[0], c[1], -0.02], material="table_wood", contype=1, conaffinity=1)
+    leg_h = (TABLE_HEIGHT - 0.04) / 2
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            world.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.03, 0.03, leg_h],
+                           pos=[c[0] + sx * (half[0] - 0.06), c[1] + sy * (half[1] - 0.06), -0.04 - leg_h],
+                           material="table_leg", contype=0, conaffinity=0)
 
 
 def _fmt(values: np.ndarray) -> str:
@@ -124,6 +156,7 @@ def exact_xml(spec: mujoco.MjSpec, model: mujoco.MjModel) -> str:
     if root.find(".//frame") is not None:
         return ET.tostring(root, encoding="unicode")
     world = root.find("worldbody")
+    assert world is not None
     bodies = list(world.iter("body"))
     joints = [j for b in bodies for j in b.findall("joint")]
     sites = [s for b in [world, *bodies] for s in b.findall("site")]

@@ -20,11 +20,13 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
-
 import lfd  # noqa: E402
+import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
 from robots import IK_BACKENDS, RobotError, load_robot  # noqa: E402
-from sim.controller import FieldController  # noqa: E402
+from sim.controller import (
+    ACTUATIONS,  # noqa: E402
+    FieldController,  # noqa: E402
+)
 from sim.modelcache import cached_field  # noqa: E402
 
 
@@ -51,7 +53,7 @@ def main() -> int:
     ap.add_argument("--learner", default="node", help="learner of the field (trained and cached if needed)")
     ap.add_argument("--model", help="a model file instead of training")
     ap.add_argument("--demos", default="spiral")
-    ap.add_argument("--actuation", default="torque", choices=sim.ACTUATIONS)
+    ap.add_argument("--actuation", default="torque", choices=ACTUATIONS)
     args = ap.parse_args()
     try:
         demos = lfd.load_demos(args.demos)

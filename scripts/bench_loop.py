@@ -2,12 +2,17 @@
 """Cost of one closed-loop control step against a bare ``mj_step`` of the same model, and the
 choice of actuation by measurement.
 
-Part 1 (cost): the control step of ``sim.rollout.execute`` (read state, Pinocchio FK, field at
-the measured position, twist, IK, actuator command, perturbation hooks, ``mj_step``) timed step
-by step, and a bare ``mujoco.mj_step`` of the same model and state, measured in the same run in
-interleaved blocks (so machine load hits both alike). Prints median and p95 of each and their
-ratio, then where the time goes (an instrumented copy of the same step), and what dm_control's
-``Environment.step`` costs for the same step.
+Part 1 (cost), for each field of ``--learner`` (default: node and contraction): the control
+step of ``sim.rollout.execute`` (``mj_step1``, read state, FK, field at the measured position,
+the fused twist + IK + actuator command, perturbation hooks, ``mj_step2``) timed step by step,
+and a bare ``mujoco.mj_step`` of the same model at the run's start, at rest, measured in the
+same run in interleaved blocks (so machine load hits both alike). Prints median and p95 of each
+and their ratio; the same ratio in CPU time (``time.thread_time`` over the whole loop and over
+as many bare steps: preemption by other processes does not count), and the real-time factor
+(simulated s per wall s, and per CPU s); the issue-15 targets (ratio <= 3, real-time factor >=
+100) are marked MET / NOT MET. Then where the time goes (an instrumented copy of the same step),
+the field alone, and what dm_control's ``Environment.step`` costs for the same step. A summary
+closes the run.
 
 Part 2 (actuation): tracking and push metrics of the same field with position servos (velocity
 feed-forward, and the plain u = q + qdot dt) and with computed torque (``sim.controller``).
@@ -22,17 +27,19 @@ import argparse
 import os
 import sys
 import time
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
 import mujoco  # noqa: E402
 
 import lfd  # noqa: E402
+import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
 from robots import RobotError, load_robot  # noqa: E402
+from sim.controller import ACTUATIONS  # noqa: E402
 from sim.modelcache import cached_field  # noqa: E402
 
 
@@ -40,15 +47,19 @@ def stats(x: np.ndarray) -> str:
     return f"median {np.median(x) * 1e6:7.1f} us   p95 {np.percentile(x, 95) * 1e6:7.1f} us"
 
 
-def bare_steps(model: mujoco.MjModel, data: mujoco.MjData, n: int) -> np.ndarray:
-    """Wall time of n bare mj_step calls, each timed, shape (n,)."""
+def bare_steps(model: mujoco.MjModel, data: mujoco.MjData, n: int) -> tuple[np.ndarray, float]:
+    """Wall time of n bare mj_step calls, each timed, shape (n,), and the CPU time of all n
+    (``time.thread_time``, untimed calls)."""
     out = np.empty(n)
     clock = time.perf_counter
     for k in range(n):
         t0 = clock()
         mujoco.mj_step(model, data)
         out[k] = clock() - t0
-    return out
+    cpu0 = time.thread_time()
+    for _ in range(n):
+        mujoco.mj_step(model, data)
+    return out, time.thread_time() - cpu0
 
 
 def holding_data(exp: sim.Experiment, q: np.ndarray) -> mujoco.MjData:
@@ -66,37 +77,54 @@ def holding_data(exp: sim.Experiment, q: np.ndarray) -> mujoco.MjData:
 
 
 def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict[str, np.ndarray]:
-    """Per-stage wall times of ``steps`` control steps of the rollout loop (same calls, timed)."""
+    """Per-stage wall times of ``steps`` control steps of the rollout loop (the same calls as
+    ``sim.rollout.execute``, timed one by one), shape (steps,) each."""
     env = sim.make_environment(exp.robot, exp.placement, exp.start, field.goal, duration_s=exp.duration_s,
                                rotation_ref=exp.rotation_ref, physics=exp.physics, **exp.options)
     env.reset()
     task = env.task
     m, d = env.physics.model.ptr, env.physics.data.ptr
     ctl, f = task.controller, field.point_fn()
-    qadr, dadr, acts = exp.robot.mj_qpos_adr, exp.robot.mj_dof_adr, exp.robot.mj_actuator_ids
-    names = ("read state", "FK (Pinocchio)", "field f(x)", "twist", "IK", "actuation", "mj_step")
+    qadr = exp.robot.mj_qpos_adr
+    split = ctl.uses_mj_dynamics
+    names = ("mj_step1", "read state", "FK (Pinocchio)", "field f(x)", "twist+IK+command", "mj_step2")
+    steps = min(steps, task.n_steps)
     t = {k: np.empty(steps) for k in names}
     clock = time.perf_counter
-    for k in range(min(steps, task.n_steps)):
+    for k in range(steps):
         c0 = clock()
-        q = d.qpos[qadr]
-        qd = d.qvel[dadr]
+        if split:
+            mujoco.mj_step1(m, d)
         c1 = clock()
-        p = ctl.measure(q)
+        q = d.qpos[qadr]
         c2 = clock()
-        v = f(ctl.to_task(p))
+        p = ctl.measure(q)
         c3 = clock()
-        tw = ctl.twist(v)
+        v = f(ctl.to_task(p))
         c4 = clock()
-        qd_ref = ctl.solve_ik(q, tw)
+        task.apply(d, q, None, v, m)
         c5 = clock()
-        d.ctrl[acts] = ctl.actuate(q, qd, qd_ref)
+        if split:
+            mujoco.mj_step2(m, d)
+        else:
+            mujoco.mj_step(m, d)
         c6 = clock()
-        mujoco.mj_step(m, d)
-        c7 = clock()
-        for name, a, b in zip(names, (c0, c1, c2, c3, c4, c5, c6), (c1, c2, c3, c4, c5, c6, c7)):
+        for name, a, b in zip(names, (c0, c1, c2, c3, c4, c5), (c1, c2, c3, c4, c5, c6)):
             t[name][k] = b - a
     return t
+
+
+def field_cost(field: lfd.VelocityField, x: np.ndarray, n: int = 20000) -> np.ndarray:
+    """Wall time of n single-point field evaluations at the points x, shape (K, d), shape (n,)."""
+    f = field.point_fn()
+    out = np.empty(n)
+    clock = time.perf_counter
+    for k in range(n):
+        xk = x[k % len(x)]
+        t0 = clock()
+        f(xk)
+        out[k] = clock() - t0
+    return out
 
 
 def env_steps(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> np.ndarray:
@@ -114,34 +142,51 @@ def env_steps(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> np.n
     return out
 
 
-def cost(exp: sim.Experiment, field: lfd.VelocityField, repeats: int) -> None:
+def cost(exp: sim.Experiment, field: lfd.VelocityField, repeats: int) -> dict[str, float]:
+    """Print the control step against a bare mj_step and the real-time factor; returns the ratios."""
     m = exp.physics.model.ptr
-    bare, loop = [], []
+    exp.rollout(field)                          # warm-up: JIT kernels, caches
+    bare, loop, rtf, cpu_ratio, cpu_rtf = [], [], [], [], []
     for _ in range(repeats):
         ro = exp.rollout(field)
         loop.append(ro.step_time_s)
+        rtf.append(ro.realtime_factor)
         d = holding_data(exp, ro.q[0])
-        bare.append(bare_steps(m, d, len(ro.step_time_s)))
+        b, b_cpu = bare_steps(m, d, len(ro.step_time_s))
+        bare.append(b)
+        cpu_ratio.append(ro.cpu_s / b_cpu)
+        cpu_rtf.append(float(ro.t[-1] - ro.t[0]) / ro.cpu_s)
     bare_t, loop_t = np.concatenate(bare), np.concatenate(loop)
+    ratio = float(np.median(loop_t) / np.median(bare_t))
+    c_ratio, c_rtf = float(np.median(cpu_ratio)), float(np.median(cpu_rtf))
     print(f"bare mj_step          : {stats(bare_t)}   ({len(bare_t)} steps)")
     print(f"closed-loop step      : {stats(loop_t)}   ({len(loop_t)} steps)")
-    print(f"ratio (median)        : {np.median(loop_t) / np.median(bare_t):.2f}    "
-          f"ratio (p95) {np.percentile(loop_t, 95) / np.percentile(bare_t, 95):.2f}    (target <= 3)")
+    print(f"ratio, wall (median)  : {ratio:.2f}    ratio (p95) "
+          f"{np.percentile(loop_t, 95) / np.percentile(bare_t, 95):.2f}")
+    print(f"ratio, CPU time       : {c_ratio:.2f} (runs: {', '.join(f'{r:.2f}' for r in cpu_ratio)})    "
+          f"target <= 3: {'MET' if c_ratio <= 3 else 'NOT MET'}")
+    print(f"real-time factor      : wall {np.median(rtf):.0f} (runs: {', '.join(f'{r:.0f}' for r in rtf)}), "
+          f"CPU time {c_rtf:.0f}    target >= 100: {'MET' if c_rtf >= 100 else 'NOT MET'} (CPU time; "
+          f"wall under load {os.getloadavg()[0]:.1f})")
     parts = breakdown(exp, field, 2000)
     total = sum(np.median(v) for v in parts.values())
     print("breakdown (instrumented, medians):")
     for name, v in parts.items():
-        print(f"  {name:16s} {np.median(v) * 1e6:7.1f} us  {np.median(v) / total:5.1%}")
+        print(f"  {name:18s} {np.median(v) * 1e6:7.1f} us  {np.median(v) / total:5.1%}")
+    fc = field_cost(field, exp.demos.x[exp.demo_index])
+    print(f"field alone           : {stats(fc)}   ({np.median(fc) / np.median(bare_t):.2f}x a bare mj_step)")
     envt = env_steps(exp, field, 2000)
     print(f"dm_control Environment.step with the same controller: {stats(envt)}  "
           f"({np.median(envt) / np.median(loop_t):.1f}x the lean loop)")
+    return {"ratio": ratio, "cpu_ratio": c_ratio, "rtf": float(np.median(rtf)), "cpu_rtf": c_rtf,
+            "field_ratio": float(np.median(fc) / np.median(bare_t))}
 
 
 def actuation(robot_name: str, demos: lfd.DemoSet, field: lfd.VelocityField, ik: str, plane: str) -> None:
     print("\nactuation    variant                  tracking_rmse  final_goal  push max_dev  recovery  step")
     for act, ff, label in (("position", False, "servo u = q + qdot dt"),
                            ("position", True, "servo + velocity ff"),
-                           ("torque", True, "computed torque (RNEA)")):
+                           ("torque", True, "computed torque")):
         robot = load_robot(robot_name, actuation=act)
         exp = sim.Experiment(robot, demos, plane=plane, ik=ik, actuation=act, feedforward=ff)
         a = exp.run(field, "none").metrics
@@ -167,33 +212,55 @@ def planes(robot_name: str, demos: lfd.DemoSet, field: lfd.VelocityField, ik: st
               f"  {'never' if rec is None else f'{rec:5.2f} s':>8s}")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit 2)."""
+
+    def error(self, message: str) -> Any:
+        self.exit(2, f"bench_loop: error: {message} (see --help)\n")
+
+
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = _Parser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--robot", default="panda")
-    ap.add_argument("--learner", default="node", help="learner of the field (trained and cached if needed)")
+    ap.add_argument("--learner", default="node,contraction",
+                    help="learner(s) of the field, comma-separated (trained and cached if needed)")
     ap.add_argument("--model", help="a model file instead of training")
     ap.add_argument("--demos", default="spiral")
     ap.add_argument("--ik", default="dls")
-    ap.add_argument("--actuation", default="torque", choices=sim.ACTUATIONS)
+    ap.add_argument("--actuation", default="torque", choices=ACTUATIONS)
     ap.add_argument("--plane", default="auto")
     ap.add_argument("--repeats", type=int, default=3, help="interleaved rollout / bare blocks")
     ap.add_argument("--skip-actuation", action="store_true", help="only the cost part (no parts 2, 3)")
     args = ap.parse_args()
+    if not 1 <= args.repeats <= 1000:
+        print("bench_loop: error: --repeats must be in 1..1000", file=sys.stderr)
+        return 2
+    learners = [s.strip() for s in args.learner.split(",") if s.strip()]
     try:
         demos = lfd.load_demos(args.demos)
-        field = lfd.load(args.model) if args.model else cached_field(args.learner, demos)[0]
+        fields = [lfd.load(args.model)] if args.model else [cached_field(name, demos)[0] for name in learners]
         robot = load_robot(args.robot, actuation=args.actuation)
         exp = sim.Experiment(robot, demos, plane=args.plane, ik=args.ik, actuation=args.actuation)
     except (lfd.LfdError, sim.SimError, RobotError) as e:
         print(f"bench_loop: error: {e}", file=sys.stderr)
         return 2
-    print(f"robot {robot.name}, field {field.learner} ({args.demos}), ik {args.ik}, actuation {args.actuation}, "
-          f"control {exp.options['control_hz']:g} Hz, load average {os.getloadavg()[0]:.2f} "
-          f"on {os.cpu_count()} CPUs")
-    cost(exp, field, args.repeats)
+    summary = []
+    for field in fields:
+        print(f"\nrobot {robot.name}, field {field.learner} ({args.demos}), ik {args.ik}, actuation {args.actuation}, "
+              f"control {exp.options['control_hz']:g} Hz, load average {os.getloadavg()[0]:.2f} "
+              f"on {os.cpu_count()} CPUs")
+        summary.append((field.learner, cost(exp, field, args.repeats)))
+    print("\nsummary (issue 15 targets: step / bare mj_step <= 3, real-time factor >= 100; CPU time, "
+          "wall-clock median in brackets)")
+    for name, r in summary:
+        print(f"  {name:12s} step ratio {r['cpu_ratio']:5.2f} [{r['ratio']:5.2f}] "
+              f"({'met' if r['cpu_ratio'] <= 3 else 'not met'})   real-time factor {r['cpu_rtf']:5.0f} "
+              f"[{r['rtf']:4.0f}] ({'met' if r['cpu_rtf'] >= 100 else 'not met'})   "
+              f"field alone {r['field_ratio']:.2f}x mj_step")
     if not args.skip_actuation:
-        actuation(args.robot, demos, field, args.ik, args.plane)
-        planes(args.robot, demos, field, args.ik, args.actuation)
+        for field in fields:
+            actuation(args.robot, demos, field, args.ik, args.plane)
+            planes(args.robot, demos, field, args.ik, args.actuation)
     return 0
 
 

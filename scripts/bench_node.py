@@ -27,9 +27,9 @@ import time
 
 import numpy as np
 import torch
-from torchdiffeq import odeint
 
 import lfd
+from lfd import integrate
 
 A = ((-0.1, 2.0), (-2.0, -0.1))
 Y0 = (2.0, 0.0)
@@ -47,8 +47,8 @@ def spiral_data() -> tuple[np.ndarray, np.ndarray]:
     a = torch.tensor(A, dtype=torch.float64)
     t = torch.linspace(0.0, T_END, N_SAMPLES, dtype=torch.float64)
     with torch.no_grad():
-        y = odeint(lambda _t, y: y ** 3 @ a, torch.tensor([Y0], dtype=torch.float64), t,
-                   method="dopri5", rtol=1e-10, atol=1e-12)
+        y = integrate.solve(lambda _t, y: y ** 3 @ a, torch.tensor([Y0], dtype=torch.float64), t,
+                            **integrate.odeint_kwargs("dopri5", rtol=1e-10, atol=1e-12))
     return t.numpy(), y[:, 0].numpy()
 
 

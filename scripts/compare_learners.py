@@ -36,8 +36,10 @@ import argparse
 import os
 import sys
 import time
-from dataclasses import dataclass, field as dc_field
-from typing import Any, Callable
+from collections.abc import Callable
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +54,7 @@ from scipy.spatial import cKDTree  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
 import lfd  # noqa: E402
-from lfd import metrics  # noqa: E402
+from lfd import evaluation, metrics  # noqa: E402
 from lfd.bench.dmp import DMPModel, fit_dmp  # noqa: E402
 from lfd.certify import certify, generalized_eigenvalues  # noqa: E402
 from lfd.learners.tracking import TrackingField, check_tracking_contraction  # noqa: E402
@@ -144,7 +146,7 @@ class Entry:
         """Rollouts from each demo's start over its own time grid, (N, T, d)."""
         if self.is_dmp:
             return self.model.reproduce(demos.x, demos.t)[0]
-        return metrics.reproduce(self.model, demos)
+        return evaluation.reproduce(self.model, demos)
 
     @property
     def train_s(self) -> float:
@@ -516,7 +518,7 @@ def write_report(path: str, entries: dict[str, Entry], demos: lfd.DemoSet, exten
                  load: tuple[float, float], wall: float, figs: dict[str, str]) -> None:
     es = list(entries.values())
     node, cw, cs = entries["node"], entries["cw"], entries["cs"]
-    tw, ts, tc, dmp = entries["tw"], entries["ts"], entries["tc"], entries["dmp"]
+    tw, ts = entries["tw"], entries["ts"]
     head = "| Measurement | " + " | ".join(e.label for e in es) + " | Better |"
     lines = [head, "|" + "---|" * (len(es) + 2)]
     for key, label, fmt, better in ROWS:
@@ -685,12 +687,13 @@ a phase error).
 
 def sources_hash(learner: str) -> str:
     """sha256 of the sources a learner's training depends on (its module, the learner base, the
-    flows, the field, the normalisation), first 12 hex digits: a change invalidates its cache."""
+    flows, the field, the integrator, the normalisation), first 12 hex digits: a change invalidates its cache."""
     import hashlib
 
     root = os.path.dirname(lfd.__file__)
     h = hashlib.sha256()
-    for rel in (f"learners/{learner}.py", "learners/base.py", "learners/flows.py", "field.py", "normalization.py"):
+    for rel in (f"learners/{learner}.py", "learners/base.py", "learners/flows.py", "field.py", "integrate.py",
+                "normalization.py"):
         p = os.path.join(root, rel)
         if os.path.exists(p):
             with open(p, "rb") as fh:

@@ -59,7 +59,7 @@ def spiral_row(kappa: float, rate: float) -> dict[str, Any]:
 
     demos = lfd.spiral()
     field = lfd.train("contraction", demos, seed=0, progress=False, rate=rate, max_condition=kappa)
-    xs = field.exact_rollout(demos.x[:, 0], demos.t[0])
+    xs = field.closed_form_rollout(demos.x[:, 0], demos.t[0])
     rmse = float(np.sqrt(((xs - demos.x) ** 2).sum(-1).mean()))
     lo, hi = demos.bounds(0.5)
     rng = np.random.default_rng(0)
@@ -68,27 +68,17 @@ def spiral_row(kappa: float, rate: float) -> dict[str, Any]:
     u = rng.normal(size=(400, 2))
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     eps = 1e-6 * float((hi - lo).max())
-    pair = field.exact_rollout(np.vstack([x0, x0 + eps * u]), t)
+    pair = field.closed_form_rollout(np.vstack([x0, x0 + eps * u]), t)
     growth = float((np.linalg.norm(pair[400:] - pair[:400], axis=-1) / eps).max())
     corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])
     starts = np.vstack([corners, rng.uniform(lo, hi, size=(12, 2))])
     tt = np.arange(0.0, 3.0 + 1e-9, 0.002)
-    rk4_err = float(np.abs(field.exact_rollout(starts, tt) - field.rollout(starts, tt, method="rk4")).max())
+    rk4_err = float(np.abs(field.closed_form_rollout(starts, tt) - field.rollout(starts, tt, method="rk4")).max())
     extent = float((demos.x.max((0, 1)) - demos.x.min((0, 1))).max())
     return {"kappa": kappa, "rate": rate, "rmse": rmse, "overshoot": math.sqrt(field.condition_bound),
-            "worst_growth": growth, "lipschitz_bound": field.lipschitz_bound, "rk4_2ms_error_over_extent": rk4_err / extent,
+            "worst_growth": growth, "lipschitz_bound": field.lipschitz_bound,
+            "rk4_2ms_error_over_extent": rk4_err / extent,
             "feasible_rate": field.history.get("feasible_rate"), "train_s": field.history["train_time_s"]}
-
-
-def strict(obj: Any) -> Any:
-    """``obj`` with every non-finite float as None (strict JSON: KAPPA = inf is written null)."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: strict(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [strict(v) for v in obj]
-    return obj
 
 
 def fmt_kappa(k: float) -> str:
@@ -151,7 +141,7 @@ def main() -> int:
 
         import lfd
 
-        shapes = list(lfd.LASA_SHAPES) if args.shapes == "all" else args.shapes.split(",")
+        shapes = list(lfd.demos.LASA_SHAPES) if args.shapes == "all" else args.shapes.split(",")
         jobs = [(s, k) for k in KAPPAS for s in shapes]
         _one_thread()
         with mp.get_context("spawn").Pool(args.workers, initializer=_one_thread) as pool:
@@ -160,6 +150,8 @@ def main() -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    from lfd.io import write_json
+
     node_dtw = None
     res = Path(args.node_results)
     if res.is_file():
@@ -167,9 +159,9 @@ def main() -> int:
         node_dtw = {r["shape"]: r["train"]["dtw"] for r in recs if r.get("learner") == "node" and r.get("train")}
     out = Path(args.out)
     write_report(out, lasa_rows, spiral, node_dtw)
-    out.with_suffix(".json").write_text(json.dumps(strict(
-        {"lasa": [dict(zip(("shape", "kappa", "dtw", "train_s"), r)) for r in lasa_rows], "spiral": spiral}),
-        indent=1, allow_nan=False) + "\n")
+    write_json(out.with_suffix(".json"),  # strict JSON: KAPPA = inf is written null
+               {"lasa": [dict(zip(("shape", "kappa", "dtw", "train_s"), r)) for r in lasa_rows], "spiral": spiral},
+               indent=1)
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0
 

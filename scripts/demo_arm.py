@@ -3,7 +3,8 @@
 
 With no flags: trains (or takes from .cache/models) a NODE and a contraction field on the spiral
 demos, runs both on the Panda unperturbed, from a start 2 cm off the demo's and with a 20 N push,
-and writes one MP4 per run and metrics.json into a fresh folder out/demo_arm_YYYYmmdd-HHMMSS/.
+and writes one MP4 per run, its time series (.npz) and figures (.png), and metrics.json into a fresh
+folder out/demo_arm_YYYYmmdd-HHMMSS/ (--side-by-side and --grid add comparison videos; see --help).
 Scenarios: none, offset, push, goal (goal moved 2 cm), noise (joint-velocity noise); see
 ``sim.experiment.scenario``. Errors in the input (unknown
 robot or frame, missing model, bad demos, unreachable placement) print one line and exit 2; a
@@ -17,12 +18,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as _dt
-import json
 import os
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn, Sequence
+from typing import Any, NoReturn
 
 EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 2, 130, 141
 
@@ -67,7 +68,12 @@ if __name__ == "__main__":  # SIGINT and SIGTERM wait until the start-up imports
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 try:
+    import numpy as np  # noqa: E402
+
     import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
+    from sim.camera import CameraSpec  # noqa: E402
+    from sim.controller import ACTUATIONS  # noqa: E402
+    from sim.experiment import scenario  # noqa: E402
 except KeyboardInterrupt:  # Ctrl-C during the start-up imports: no traceback
     print("demo_arm: interrupted", file=sys.stderr)
     sys.exit(EXIT_INTERRUPTED)
@@ -106,9 +112,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output folder (default: a fresh out/demo_arm_YYYYmmdd-HHMMSS)")
     p.add_argument("--video", help="video path (one run), or a base name: PATH_<learner>_<scenario>.mp4")
     p.add_argument("--no-video", action="store_true", help="skip rendering")
+    v = p.add_argument_group("videos and plots")
+    v.add_argument("--camera", type=camera, default=None, metavar="NAME|AZ,EL,DIST",
+                   help="auto (default: looks at the path from its plane's normal, tilted away from the "
+                        "arm, the path across half the frame), a camera of the model (e.g. workspace), or "
+                        "azimuth,elevation,distance (deg, deg, m) around the path's centre")
+    v.add_argument("--size", type=frame_size, default=None, metavar="WxH",
+                   help="video size in pixels, even numbers (default 640x480; 1280x480 with "
+                        "--side-by-side, 960x720 with --grid); panels share it")
+    v.add_argument("--fps", type=frame_rate, default=30.0, help="video frames per simulated second (default 30)")
+    v.add_argument("--side-by-side", nargs="?", const="push", default=None, type=one_scenario, metavar="SCENARIO",
+                   help="also one video of node, contraction and tracking under the same scenario (default "
+                        "push), one labelled panel each: side_by_side_SCENARIO.mp4")
+    v.add_argument("--grid", type=grid_count, default=None, metavar="N",
+                   help="also one video of N pushes (2-9), seeds --seed .. --seed+N-1, of the first learner "
+                        "in a grid: grid_push_LEARNER.mp4")
+    v.add_argument("--table", action="store_true", help="put the robot on a table")
+    v.add_argument("--no-plots", action="store_true", help="skip the figures (time series are still saved)")
     p.add_argument("--json", help="metrics file (default OUT/metrics.json)")
     p.add_argument("--ik", choices=("dls", "pink"), default="dls", help="differential IK back-end (default dls)")
-    p.add_argument("--actuation", choices=sim.ACTUATIONS, default="torque",
+    p.add_argument("--actuation", choices=ACTUATIONS, default="torque",
                    help="computed torque (default) or position servos; see scripts/bench_loop.py")
     p.add_argument("--plane", choices=("auto", "horizontal", "vertical"), default="auto",
                    help="task plane of a 2-D field on a spatial arm (auto: horizontal)")
@@ -135,6 +158,61 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def camera(text: str) -> Any:
+    """argparse type of --camera: a ``sim.camera.CameraSpec`` (a name is checked after loading the robot)."""
+    from sim.camera import CameraSpec
+
+    try:
+        return CameraSpec.parse(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def frame_size(text: str) -> tuple[int, int]:
+    """argparse type of --size: 'WxH', even integers, 32..3840 by 32..2160."""
+    parts = text.lower().split("x")
+    try:
+        w, h = (int(v) for v in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, e.g. 640x480, got '{text[:40]}'") from None
+    if not (32 <= w <= 3840 and 32 <= h <= 2160):
+        raise argparse.ArgumentTypeError(f"video size must be 32..3840 x 32..2160 pixels, got {w}x{h}")
+    if w % 2 or h % 2:
+        raise argparse.ArgumentTypeError(f"video width and height must be even (H.264), got {w}x{h}")
+    return w, h
+
+
+def frame_rate(text: str) -> float:
+    """argparse type of --fps: a number in [1, 240]."""
+    import math
+
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and 1.0 <= v <= 240.0):
+        raise argparse.ArgumentTypeError(f"--fps must be a number from 1 to 240, got '{text[:40]}'")
+    return v
+
+
+def one_scenario(text: str) -> str:
+    """argparse type: one scenario name."""
+    if text not in sim.SCENARIOS:
+        raise argparse.ArgumentTypeError(f"unknown scenario '{text[:40]}'; use one of {', '.join(sim.SCENARIOS)}")
+    return text
+
+
+def grid_count(text: str) -> int:
+    """argparse type of --grid: an integer from 2 to 9."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if not 2 <= n <= 9:
+        raise argparse.ArgumentTypeError(f"--grid must be an integer from 2 to 9, got '{text[:40]}'")
+    return n
+
+
 def vector3(text: str) -> tuple[float, float, float]:
     """argparse type: 'x,y,z' -> three finite floats."""
     import math
@@ -151,7 +229,7 @@ def vector3(text: str) -> tuple[float, float, float]:
 def perturbations(args: argparse.Namespace, name: str) -> tuple[Any, ...]:
     """The perturbations of scenario ``name``, the push taking its --push-* flags."""
     if name != "push":
-        return sim.scenario(name, args.seed)
+        return scenario(name, args.seed)
     return (sim.Push(force_n=args.push_force, duration_s=args.push_duration, start_s=args.push_start,
                      direction=args.push_direction, seed=args.seed),)
 
@@ -262,6 +340,52 @@ def fmt(value: Any, scale: float = 1.0, digits: int = 2) -> str:
     return f"{value * scale:.{digits}f}"
 
 
+SIDE_BY_SIDE_LEARNERS = ("node", "contraction", "tracking")
+
+
+@dataclasses.dataclass
+class Plan:
+    """Every file one run writes, decided (and checked) before any work."""
+
+    videos: dict[tuple[str, str], Path]
+    series: dict[tuple[str, str], Path]
+    plots: dict[tuple[str, str], Path]
+    extra_plots: dict[str, Path]
+    side_by_side: Path | None
+    grid: Path | None
+
+
+def plan_outputs(args: argparse.Namespace, out: Path, json_path: Path, learners: list[str],
+                 outputs: Outputs, inputs: dict[str, str | None]) -> Plan:
+    import lfd
+
+    single = len(learners) * len(args.perturb) == 1
+    beside = json_path.parent
+    plan = Plan({}, {}, {}, {}, None, None)
+    for learner in learners:
+        for name in args.perturb:
+            if not args.no_video:
+                plan.videos[learner, name] = video_path(args, out, learner, name, single)
+            plan.series[learner, name] = beside / f"{learner}_{name}.npz"
+            if not args.no_plots:
+                plan.plots[learner, name] = beside / f"{learner}_{name}.png"
+    if not args.no_plots:
+        plan.extra_plots["paths"] = beside / "paths.png"
+        for learner in learners:
+            plan.extra_plots[f"loss_{learner}"] = beside / f"loss_{learner}.png"
+    if args.side_by_side and not args.no_video:
+        plan.side_by_side = out / f"side_by_side_{args.side_by_side}.mp4"
+    if args.grid and not args.no_video:
+        plan.grid = out / f"grid_push_{learners[0]}.mp4"
+    every = [*plan.videos.values(), *plan.series.values(), *plan.plots.values(), *plan.extra_plots.values(),
+             *(p for p in (plan.side_by_side, plan.grid) if p is not None)]
+    for path in every:
+        if same_path(path, json_path):
+            raise lfd.ConfigError(f"{path}: an output and --json would be the same file")
+        outputs.check(path, "output", inputs)
+    return plan
+
+
 def run(args: argparse.Namespace) -> int:
     import lfd
     from robots import load_robot
@@ -282,25 +406,38 @@ def run(args: argparse.Namespace) -> int:
         raise lfd.ConfigError(f"{out}: --out exists and is not a folder")
     inputs = {"model file": args.model, "demo file": args.demos}
     outputs.check(json_path, "--json", inputs)
-    if not args.no_video:
-        n_runs = (1 if args.model or args.learner not in (None, "both") else 2) * len(args.perturb)
-        learners_ = [args.learner or "node"] if n_runs == len(args.perturb) else ["node", "contraction"]
-        for learner in learners_:
-            for name in args.perturb:
-                path = video_path(args, out, learner, name, single=n_runs == 1)
-                if same_path(path, json_path):
-                    raise lfd.ConfigError(f"{path}: a video and --json would be the same file")
-                outputs.check(path, "video", inputs)
+    n_runs = (1 if args.model or args.learner not in (None, "both") else 2) * len(args.perturb)
+    planned = [args.learner or "node"] if n_runs == len(args.perturb) else ["node", "contraction"]
+    plan = plan_outputs(args, out, json_path, planned, outputs, inputs)
     demos = lfd.load_demos(args.demos)
-    robot = load_robot(args.robot, args.ee_frame, actuation=args.actuation)
+    robot = load_robot(args.robot, args.ee_frame, actuation=args.actuation, table=args.table)
+    if args.camera is not None:
+        try:
+            args.camera.check(robot.mj_model)
+        except ValueError as e:
+            raise lfd.ConfigError(str(e)) from None
     # the placement (reachability) and the push are checked before any training
     exp = sim.Experiment(robot, demos, placement=placement(args, robot, demos), plane=args.plane,
-                         size_m=args.size_m, control_hz=args.control_hz, ik=args.ik, actuation=args.actuation)
-    if "push" in args.perturb and args.push_start + args.push_duration > exp.duration_s:
+                         size_m=args.size_m, control_hz=args.control_hz, ik=args.ik, actuation=args.actuation,
+                         fps=args.fps)
+    pushes = "push" in args.perturb or args.side_by_side == "push" or args.grid
+    if pushes and args.push_start + args.push_duration > exp.duration_s:
         raise lfd.ConfigError(f"the push ends at {args.push_start + args.push_duration:g} s, after the run "
                               f"({exp.duration_s:g} s)")
     fields: dict[str, lfd.VelocityField] = {}
     models: dict[str, dict[str, Any]] = {}
+
+    def train(name: str) -> None:
+        options = {} if args.iters is None else _iters_option(name, args.iters)
+        t0 = time.perf_counter()
+        field, path, trained = cached_field(name, demos, args.seed, options, progress=progress, verbose=verbose)
+        fields[name] = field
+        models[name] = {"path": str(path), "trained_now": trained, "options": options,
+                        "train_time_s": field.history.get("train_time_s"),
+                        "load_or_train_s": time.perf_counter() - t0}
+        if verbose:
+            print(f"{name}: {'trained' if trained else 'cached'} model {path}", file=sys.stderr)
+
     if args.model:
         field = lfd.load(args.model)
         if args.learner and args.learner != field.learner:
@@ -308,83 +445,181 @@ def run(args: argparse.Namespace) -> int:
         fields[field.learner] = field
         models[field.learner] = {"path": args.model, "trained_now": False}
     else:
-        learners = ("node", "contraction") if args.learner in (None, "both") else (args.learner,)
-        for name in learners:
-            options = {} if args.iters is None else _iters_option(name, args.iters)
-            t0 = time.perf_counter()
-            field, path, trained = cached_field(name, demos, args.seed, options, progress=progress,
-                                                verbose=verbose)
-            fields[name] = field
-            models[name] = {"path": str(path), "trained_now": trained, "options": options,
-                            "train_time_s": field.history.get("train_time_s"),
-                            "load_or_train_s": time.perf_counter() - t0}
-            if verbose:
-                print(f"{name}: {'trained' if trained else 'cached'} model {path}", file=sys.stderr)
+        for name in ("node", "contraction") if args.learner in (None, "both") else (args.learner,):
+            train(name)
+    main_learners = list(fields)
+    if args.side_by_side:
+        for name in SIDE_BY_SIDE_LEARNERS:
+            if name not in fields:
+                train(name)
     for name, field in fields.items():
         if field.dim != demos.dim:
             raise lfd.ConfigError(f"the {name} model is {field.dim}-D but the demos {demos.name} are {demos.dim}-D")
+    if main_learners != planned:  # --model named its own learner: the planned names follow it
+        plan = plan_outputs(args, out, json_path, main_learners, Outputs(), inputs)
 
     results: list[sim.RunResult] = []
-    jobs = [(learner, name) for learner in fields for name in args.perturb]
     t_sim = time.perf_counter()
-    for learner, name in jobs:
+    for learner in main_learners:
+        for name in args.perturb:
+            if verbose:
+                print(f"running {learner} / {name}", file=sys.stderr)
+            results.append(exp.run(fields[learner], name, perturbations(args, name), seed=args.seed,
+                                   progress=progress))
+    side: list[sim.RunResult] = []
+    if args.side_by_side:
+        for learner in SIDE_BY_SIDE_LEARNERS:
+            done = [r for r in results if r.learner == learner and r.scenario == args.side_by_side]
+            if verbose and not done:
+                print(f"running {learner} / {args.side_by_side} (side by side)", file=sys.stderr)
+            side.append(done[0] if done else exp.run(fields[learner], args.side_by_side,
+                                                     perturbations(args, args.side_by_side), seed=args.seed,
+                                                     progress=progress))
+    grid: list[sim.RunResult] = []
+    for i in range(args.grid or 0):
         if verbose:
-            print(f"running {learner} / {name}", file=sys.stderr)
-        results.append(exp.run(fields[learner], name, perturbations(args, name), seed=args.seed,
-                               progress=progress))
+            print(f"running {main_learners[0]} / push, seed {args.seed + i} (grid)", file=sys.stderr)
+        grid.append(exp.run(fields[main_learners[0]], "push", push_of(args, args.seed + i),
+                            seed=args.seed + i, progress=progress))
     t_sim = time.perf_counter() - t_sim
 
     try:
-        _write_outputs(args, exp, results, models, out, json_path, outputs, t_sim, progress, verbose)
+        _write_outputs(args, exp, results, side, grid, fields, models, plan, json_path, outputs, t_sim,
+                       progress, verbose)
     except BaseException:
         outputs.rollback()
         raise
-    print_table(results)
-    print(f"wrote {json_path}" + ("" if args.no_video else f" and {len(results)} video(s) into {out}"))
+    print_table(results + [r for r in side if r not in results])
+    n_videos = len(plan.videos) + (plan.side_by_side is not None) + (plan.grid is not None)
+    print(f"wrote {json_path}" + ("" if args.no_video else f" and {n_videos} video(s) into {out}"))
     return 0
 
 
+def push_of(args: argparse.Namespace, seed_: int) -> tuple[Any, ...]:
+    """The push of the --push-* flags with direction drawn from ``seed_`` (unless --push-direction)."""
+    return (sim.Push(force_n=args.push_force, duration_s=args.push_duration, start_s=args.push_start,
+                     direction=args.push_direction, seed=seed_),)
+
+
 def same_path(a: Path, b: Path) -> bool:
-    from lfd.modelfile import same_file
+    from lfd.io import same_file
 
     return same_file(a, b)
 
 
-def _write_outputs(args: argparse.Namespace, exp: Any, results: list[Any], models: dict[str, Any],
-                   out: Path, json_path: Path, outputs: Outputs, t_sim: float, progress: bool,
-                   verbose: bool) -> None:
-    """Videos, then metrics.json (atomically, last); every file and folder noted in outputs."""
-    from lfd.modelfile import atomic_write
+def _write_outputs(args: argparse.Namespace, exp: Any, results: list[Any], side: list[Any], grid: list[Any],
+                   fields: dict[str, Any], models: dict[str, Any], plan: Plan, json_path: Path,
+                   outputs: Outputs, t_sim: float, progress: bool, verbose: bool) -> None:
+    """Videos, time series, figures, then metrics.json (atomically, last); every file and folder
+    noted in outputs (removed again if anything fails)."""
+    from lfd.io import write_json
+    from sim import timeseries
 
-    outputs.make_dir(out)
+    camera_ = args.camera or CameraSpec()
+    size = args.size or (640, 480)
+
+    def new_file(path: Path) -> Path:
+        outputs.make_dir(path.parent)
+        if not path.exists():
+            outputs.files.append(path)
+        return path
+
     runs: list[dict[str, Any]] = []
-    t_video = time.perf_counter()
+    t_video = t_files = 0.0
     for r in results:
+        key = (r.learner, r.scenario)
         entry: dict[str, Any] = {"learner": r.learner, "scenario": r.scenario,
                                  "perturbations": [p.describe() for p in perturbations(args, r.scenario)],
                                  "metrics": r.metrics}
-        if not args.no_video:
-            path = video_path(args, out, r.learner, r.scenario, single=len(results) == 1)
+        t0 = time.perf_counter()
+        ts = timeseries.arrays(r, exp.placement, exp.robot)
+        timeseries.save(new_file(plan.series[key]), ts)
+        entry["timeseries"] = str(plan.series[key])
+        if key in plan.plots:
+            _save_figure(new_file(plan.plots[key]), _run_figure(ts, r))
+            entry["plot"] = str(plan.plots[key])
+        t_files += time.perf_counter() - t0
+        if key in plan.videos:
+            path = plan.videos[key]
             if verbose:
                 print(f"rendering {path}", file=sys.stderr)
             entry["video"] = str(path)
-            outputs.make_dir(path.parent)
-            existed = path.exists()
-            entry["video_frames"] = exp.render(r, path, progress=progress)
-            if not existed:
-                outputs.files.append(path)
+            t0 = time.perf_counter()
+            entry["video_frames"] = exp.render(r, new_file(path), size[0], size[1], args.fps, progress, camera_)
+            t_video += time.perf_counter() - t0
         runs.append(entry)
-    t_video = time.perf_counter() - t_video
+    report: dict[str, Any] = {}
+    if side and plan.side_by_side is not None:
+        if verbose:
+            print(f"rendering {plan.side_by_side}", file=sys.stderr)
+        w, h = args.size or (1280, 480)
+        t0 = time.perf_counter()
+        frames = exp.render(side, new_file(plan.side_by_side), w, h, args.fps, progress, camera_,
+                            titles=[f"{r.learner} / {r.scenario}" for r in side])
+        report["side_by_side"] = {"video": str(plan.side_by_side), "video_frames": frames,
+                                  "render_s": time.perf_counter() - t0,
+                                  "runs": [{"learner": r.learner, "scenario": r.scenario, "metrics": r.metrics}
+                                           for r in side]}
+        t_video += report["side_by_side"]["render_s"]
+    if grid and plan.grid is not None:
+        if verbose:
+            print(f"rendering {plan.grid}", file=sys.stderr)
+        w, h = args.size or (960, 720)
+        t0 = time.perf_counter()
+        seeds = [args.seed + i for i in range(len(grid))]
+        frames = exp.render(grid, new_file(plan.grid), w, h, args.fps, progress, camera_,
+                            titles=[f"{r.learner} / push, seed {s}" for r, s in zip(grid, seeds)])
+        report["grid"] = {"video": str(plan.grid), "video_frames": frames, "seeds": seeds,
+                          "runs": [{"seed": s, "metrics": r.metrics} for r, s in zip(grid, seeds)]}
+        t_video += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if "paths" in plan.extra_plots:
+        from sim.plots import paths_figure
+
+        goal = np.asarray(next(iter(fields.values())).goal)
+        label_runs = [(f"{r.learner} / {r.scenario}", exp.placement.to_task(r.rollout.ee)) for r in results]
+        _save_figure(new_file(plan.extra_plots["paths"]),
+                     paths_figure(exp.demos.x, label_runs, goal, f"tool paths over the demos {exp.demos.name}"))
+        for learner in {r.learner for r in results}:
+            path = plan.extra_plots.get(f"loss_{learner}")
+            if path is not None and fields[learner].history.get("loss"):
+                from matplotlib.figure import Figure
+
+                from lfd.plotting import draw_loss
+
+                fig = Figure(figsize=(7, 4.5), layout="constrained")
+                draw_loss(fig.add_subplot(), fields[learner].history, fields[learner].config)
+                _save_figure(new_file(path), fig)
+    t_files += time.perf_counter() - t0
     report = {
         "created": _dt.datetime.now().isoformat(timespec="seconds"),
         "command": sys.argv,
-        "settings": {**exp.describe(), "seed": args.seed},
+        "settings": {**exp.describe(), "seed": args.seed, "video": {
+            "size": list(size), "fps": args.fps, "camera": args.camera.name if args.camera else "auto"}},
         "models": models,
         "runs": runs,
-        "timing_s": {"simulation": t_sim, "video": t_video},
+        **report,
+        "timing_s": {"simulation": t_sim, "video": t_video, "series_and_plots": t_files},
     }
     outputs.make_dir(json_path.parent)
-    atomic_write(json_path, lambda f: f.write(json.dumps(report, indent=2, default=_json_default).encode()))
+    write_json(json_path, report)
+
+
+def _run_figure(ts: dict[str, Any], r: Any) -> Any:
+    from sim.plots import run_figure
+
+    return run_figure(ts, r.rollout.hold_window_s)
+
+
+def _save_figure(path: Path, fig: Any) -> None:
+    """Save a matplotlib Figure as PNG atomically."""
+    import io
+
+    from lfd.io import atomic_write
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    atomic_write(path, lambda f: f.write(buf.getvalue()))
 
 
 def _iters_option(learner: str, iters: int) -> dict[str, int]:
@@ -396,16 +631,6 @@ def _iters_option(learner: str, iters: int) -> dict[str, int]:
     if key is None:
         return {}
     return {key: iters}
-
-
-def _json_default(o: Any) -> Any:
-    import numpy as np
-
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    return str(o)
 
 
 def print_table(results: Sequence[sim.RunResult]) -> None:
@@ -424,22 +649,9 @@ def print_table(results: Sequence[sim.RunResult]) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    try:
-        try:
-            code = _main(argv)
-            sys.stdout.flush()
-            return code
-        except KeyboardInterrupt:
-            print("demo_arm: interrupted", file=sys.stderr)
-            return EXIT_INTERRUPTED
-        except BrokenPipeError:  # ``demo_arm.py | head``: the reader has gone; end quietly
-            try:
-                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-            except (OSError, ValueError):
-                pass
-            return EXIT_BROKEN_PIPE
-    except KeyboardInterrupt:  # a second Ctrl-C while reporting the first
-        return EXIT_INTERRUPTED
+    from lfd.cli import run_guarded
+
+    return run_guarded(_main, argv, "demo_arm")
 
 
 def _main(argv: Sequence[str] | None) -> int:

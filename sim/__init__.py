@@ -17,30 +17,25 @@ As a dm_env environment (for RL; gymnasium through ``shimmy.DmControlCompatibili
     ts = env.reset()                               # observations: sim.OBSERVATION_KEYS
     ts = env.step(v)                               # v: task velocity, shape (d,)
 
-Lower level: ``Placement`` (task space -> robot), ``make_environment`` (the dm_control
-Environment: Physics + ``FieldTrackingTask``), ``execute`` (the fast loop on that Environment),
-``FieldController`` (twist -> IK -> actuators), the perturbations ``StartOffset``, ``Push``,
-``GoalShift``, ``JointVelocityNoise``, and ``render_rollout``.
+The top level is what a user of the arm needs (12 names); the lower layer lives in its modules:
+``sim.task`` (``ArmPhysics``, ``FieldTrackingTask``), ``sim.rollout`` (``execute``, the fast loop on
+that Environment; ``Rollout``, ``Hold``), ``sim.controller`` (``FieldController``: twist -> IK ->
+actuators; ``ACTUATIONS``, ``Gains``), ``sim.render`` (videos), ``sim.metrics`` (scores),
+``sim.obstacles`` (obstacles as MuJoCo geoms, contacts), ``sim.errors`` (``SimError`` and its
+subclasses ``PlacementError``, ``SimulationError``, ``RenderError``).
 """
 
 from sim.gl import select_backend
 
 select_backend()  # MUJOCO_GL must be set before mujoco (or dm_control) is imported
 
-from sim.controller import ACTUATIONS, FieldController, Gains  # noqa: E402
-from sim.errors import PlacementError, RenderError, SimError, SimulationError  # noqa: E402
-from sim.experiment import SCENARIOS, Experiment, RunResult, scenario  # noqa: E402
-from sim.metrics import recovery_time, run_metrics  # noqa: E402
-from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset  # noqa: E402
+from sim.errors import SimError  # noqa: E402
+from sim.experiment import SCENARIOS, Experiment, RunResult  # noqa: E402
+from sim.perturbations import GoalShift, JointVelocityNoise, Push, StartOffset  # noqa: E402
 from sim.placement import Placement  # noqa: E402
-from sim.render import SceneRenderer, render_rollout, write_video  # noqa: E402
-from sim.rollout import Rollout, execute  # noqa: E402
-from sim.task import OBSERVATION_KEYS, ArmPhysics, FieldTrackingTask, make_environment  # noqa: E402
+from sim.task import OBSERVATION_KEYS, make_environment  # noqa: E402
 
 __all__ = [
-    "ACTUATIONS", "ArmPhysics", "Experiment", "FieldController", "FieldTrackingTask", "Gains", "GoalShift",
-    "JointVelocityNoise", "OBSERVATION_KEYS", "Perturbation", "Placement", "PlacementError", "Push",
-    "RenderError", "Rollout", "RunResult", "SCENARIOS", "SceneRenderer", "SimError", "SimulationError",
-    "StartOffset", "execute", "make_environment", "recovery_time", "render_rollout", "run_metrics",
-    "scenario", "write_video",
+    "Experiment", "GoalShift", "JointVelocityNoise", "OBSERVATION_KEYS", "Placement", "Push", "RunResult",
+    "SCENARIOS", "SimError", "StartOffset", "make_environment",
 ]

@@ -17,21 +17,27 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, TypeGuard, cast
 
 import numpy as np
 
 from lfd import DemoSet, VelocityField
+from lfd.integrate import rk4, rk4_phase
 from robots import Kinematics, RobotModel
+from sim.camera import CameraSpec
 from sim.controller import Gains, actuation_of
 from sim.errors import SimError
 from sim.metrics import RECOVERY_TOLERANCE_M, recovery_time, run_metrics
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
 from sim.placement import Placement, base_position
-from sim.render import FPS, HEIGHT, WIDTH, render_rollout
-from sim.rollout import Hold, PhaseLoop, Rollout, execute
+from sim.render import HEIGHT, WIDTH, Panel, render_panels
+from sim.rollout import FPS, Hold, PhaseLoop, Rollout, execute
 from sim.task import ArmPhysics, make_environment
+
+if TYPE_CHECKING:
+    from lfd.learners.tracking import TrackingField
 
 SCENARIOS: tuple[str, ...] = ("none", "offset", "push", "goal", "noise", "hold")
 
@@ -54,63 +60,25 @@ def scenario(name: str, seed: int = 0) -> tuple[Perturbation, ...]:
     return table[name]
 
 
-def integrate(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, t: np.ndarray,
-              substeps: int = 1) -> np.ndarray:
-    """Classic RK4 of dx/dt = f(x) from x0, shape (d,), over the grid t, shape (T,), with
-    ``substeps`` steps per interval; returns shape (T, d). It runs on the field's numpy point
-    evaluator (equal to the torch path to 1e-12): for one start over thousands of 2 ms control
-    steps it is ~20x faster than ``field.rollout`` and agrees with it to ~3e-10 user units."""
-    x = np.asarray(x0, dtype=np.float64).copy()
-    out = np.empty((len(t), len(x)))
-    out[0] = x
-    for k in range(1, len(t)):
-        h = (t[k] - t[k - 1]) / substeps
-        for _ in range(substeps):
-            k1 = f(x)
-            k2 = f(x + 0.5 * h * k1)
-            k3 = f(x + 0.5 * h * k2)
-            k4 = f(x + h * k3)
-            x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        out[k] = x
-    return out
-
-
-def integrate_phase(fn: Callable[[np.ndarray, float], tuple[np.ndarray, float]], x0: np.ndarray,
-                    t: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Classic RK4 of the phase field (x, s) -> (dx/dt, ds/dt) (Eqs. (T3)-(T4) of
-    ``lfd.learners.tracking``) from x0, shape (d,), and s = 0 over t, shape (T,). Returns x,
-    shape (T, d), and s, shape (T,)."""
-    x = np.asarray(x0, dtype=np.float64).copy()
-    s = 0.0
-    xs, ss = np.empty((len(t), len(x))), np.empty(len(t))
-    xs[0], ss[0] = x, s
-    for k in range(1, len(t)):
-        h = (t[k] - t[k - 1]) / substeps
-        for _ in range(substeps):
-            v1, s1 = fn(x, s)
-            v2, s2 = fn(x + 0.5 * h * v1, s + 0.5 * h * s1)
-            v3, s3 = fn(x + 0.5 * h * v2, s + 0.5 * h * s2)
-            v4, s4 = fn(x + h * v3, s + h * s3)
-            x = x + (h / 6.0) * (v1 + 2.0 * v2 + 2.0 * v3 + v4)
-            s = min(1.0, s + (h / 6.0) * (s1 + 2.0 * s2 + 2.0 * s3 + s4))
-        xs[k], ss[k] = x, s
-    return xs, ss
-
-
-def has_phase(field: VelocityField) -> bool:
+def has_phase(field: VelocityField) -> TypeGuard[TrackingField]:
     """Whether the field carries a phase state (``phase_point_fn``)."""
     return hasattr(field, "phase_point_fn")
 
 
 @dataclass
 class RunResult:
-    """A scored run: ``reference`` (K+1, 3) is the unperturbed field rollout mapped to world."""
+    """A scored run: ``reference`` (K+1, 3) is the unperturbed field rollout mapped to world;
+    ``unperturbed`` (K+1, 3) the measured tool path of the same run without its push or hold
+    (None when it had neither); ``command`` (K+1, d) the field's command v = f(x - dg) at each
+    measured position, task units per second."""
 
     learner: str
     scenario: str
     rollout: Rollout
     reference: np.ndarray
     metrics: dict[str, Any]
+    unperturbed: np.ndarray | None = None
+    command: np.ndarray | None = None
 
 
 class Experiment:
@@ -119,7 +87,8 @@ class Experiment:
     def __init__(self, robot: RobotModel, demos: DemoSet, *, placement: Placement | None = None,
                  plane: str = "auto", size_m: float | None = None, demo_index: int = 0,
                  control_hz: float = 500.0, ik: str = "dls", actuation: str | None = None,
-                 settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True) -> None:
+                 settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True,
+                 fps: float = FPS) -> None:
         self.robot, self.demos = robot, demos
         self.placement = placement or Placement.auto(robot, demos.x, plane=plane, size_m=size_m)
         self.rotation_ref = None
@@ -135,10 +104,11 @@ class Experiment:
         self.demo_world = self.placement.to_world(demos.x[demo_index])
         self.start = demos.x[demo_index, 0].copy()
         self.duration_s = float(self.demo_t[-1]) + settle_s
-        self.options = dict(control_hz=control_hz, ik=ik, actuation=actuation or actuation_of(robot), gains=gains,
-                            feedforward=feedforward)
+        self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, actuation=actuation or actuation_of(robot),
+                                            gains=gains, feedforward=feedforward)
         self.physics = ArmPhysics.from_robot(robot)
         self.base = base_position(robot)
+        self.fps = float(fps)   # the rollouts record the full qpos at this video frame rate
         self._unperturbed: dict[tuple, tuple[VelocityField, np.ndarray, np.ndarray | None]] = {}
 
     def rollout(self, field: VelocityField, perturbations: tuple[Perturbation, ...] = (),
@@ -154,17 +124,17 @@ class Experiment:
         if has_phase(field):
             start = env.task.start_task - env.task.schedule.goal_offset_task
             fn = PhaseLoop(field, env.task.control_dt, start)
-        return execute(env, fn, progress=progress, desc=desc, hold=holds[0] if holds else None)
+        return execute(env, fn, fps=self.fps, progress=progress, desc=desc, hold=holds[0] if holds else None)
 
     def reference(self, field: VelocityField, rollout: Rollout) -> np.ndarray:
         """p_ref(t_k), shape (K+1, 3): the task-space rollout of the (goal-shifted) field from the
-        run's measured start, x_ref = dg + Phi_t(x0 - dg), mapped to world (``integrate``)."""
+        run's measured start, x_ref = dg + Phi_t(x0 - dg), mapped to world (``lfd.integrate.rk4``)."""
         shift = rollout.goal_task - np.asarray(field.goal)
         x0 = self.placement.to_task(rollout.ee[0])
         if has_phase(field):
-            x, _ = integrate_phase(field.phase_point_fn(x0 - shift), x0 - shift, rollout.t)
+            x, _ = rk4_phase(field.phase_point_fn(x0 - shift), x0 - shift, rollout.t)
             return self.placement.to_world(x + shift)
-        return self.placement.to_world(integrate(field.point_fn(), x0 - shift, rollout.t) + shift)
+        return self.placement.to_world(rk4(field.point_fn(), x0 - shift, rollout.t) + shift)
 
     def run(self, field: VelocityField, name: str, perturbations: tuple[Perturbation, ...] | None = None,
             seed: int = 0, progress: bool = False) -> RunResult:
@@ -188,12 +158,28 @@ class Experiment:
         metrics.update(joint_limit_violations=ro.joint_limit_violations, ik_limit_hits=ro.ik_limit_hits,
                        realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us)
         if ro.phase is not None:
-            metrics.update(self.phase_metrics(field, ro, window, None if window is None else cached[2]))
-        return RunResult(field.learner, name, ro, ref, metrics)
+            free_phase = None if window is None or cached is None else cached[2]
+            metrics.update(self.phase_metrics(field, ro, window, free_phase))
+        return RunResult(field.learner, name, ro, ref, metrics, unperturbed, self.command(field, ro))
+
+    def command(self, field: VelocityField, ro: Rollout) -> np.ndarray:
+        """The field's command at every control step, shape (K+1, d), task units per second:
+        v_k = f(x_k - dg) at the measured x_k (at the recorded phase s_k for a phase field),
+        recomputed from the recorded states (what the loop fed the controller, before IK)."""
+        shift = ro.goal_task - np.asarray(field.goal)
+        x = self.placement.to_task(ro.ee) - shift
+        if has_phase(field) and ro.phase is not None:
+            start = ro.start_task - shift
+            phase_fn = field.phase_point_fn(start)
+            return np.array([phase_fn(xk, float(sk))[0] for xk, sk in zip(x, ro.phase)])
+        fn = field.point_fn()
+        return np.array([fn(xk) for xk in x])
 
     def phase_metrics(self, field: VelocityField, ro: Rollout, window: tuple[float, float] | None,
                       free_phase: np.ndarray | None) -> dict[str, Any]:
         """The phase metrics of a run of a phase field (module docstring)."""
+        field = cast("TrackingField", field)   # only called for a phase field's run
+        assert ro.phase is not None
         shift = ro.goal_task - np.asarray(field.goal)
         x0 = self.placement.to_task(ro.ee[0]) - shift
         path = self.placement.to_world(field.reference(ro.phase, x0) + shift)      # (K+1, 3)
@@ -212,12 +198,17 @@ class Experiment:
             out["phase_advance_free"] = float((ro.hold_window_s[1] - ro.hold_window_s[0]) / field.duration)
         return out
 
-    def render(self, result: RunResult, path: str | os.PathLike, width: int = WIDTH, height: int = HEIGHT,
-               fps: float = FPS, progress: bool = False) -> int:
-        """Write the run's MP4 (see ``sim.render.render_rollout``); returns the frame count."""
+    def render(self, result: RunResult | list[RunResult], path: str | os.PathLike, width: int = WIDTH,
+               height: int = HEIGHT, fps: float = FPS, progress: bool = False,
+               camera: CameraSpec = CameraSpec(), titles: list[str] | None = None) -> int:
+        """Write the MP4 of one run, or of several runs side by side (one labelled panel each,
+        ``sim.render.render_panels``, ``width`` x ``height`` in all); returns the frame count."""
+        results = result if isinstance(result, list) else [result]
         normal = None if self.placement.dim == 3 else self.placement.normal
-        return render_rollout(self.physics.model.ptr, result.rollout, self.demo_world, path, self.base,
-                              normal, width, height, fps, progress)
+        names = titles or [f"{r.learner} / {r.scenario}" for r in results]
+        panels = [Panel(r.rollout, r.reference, name) for r, name in zip(results, names)]
+        return render_panels(self.physics.model.ptr, panels, self.demo_world, path, self.base,
+                             self.robot.mj_qpos_adr, normal, width, height, fps, camera, progress=progress)
 
     def describe(self) -> dict[str, Any]:
         """The experiment's settings, for the metrics JSON."""

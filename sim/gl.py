@@ -10,8 +10,6 @@ import ctypes.util
 import os
 import sys
 
-BACKENDS: tuple[str, ...] = ("egl", "osmesa", "glfw")
-
 
 def library_found(backend: str) -> bool:
     """Whether the shared library a back-end needs is installed (libEGL, libOSMesa or libglfw)."""

@@ -14,8 +14,9 @@ perturbations into the arrays the control loop reads, so the loop itself draws n
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 

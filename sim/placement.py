@@ -8,11 +8,7 @@ and back by x = A^T (p - o) / s (exact on the task plane; the normal component i
 A task velocity v maps to the world velocity s A v. For d = 2 the plane normal is n = R[:, 2].
 
 Default plane for a 2-D path on the Panda: horizontal, through the tool point at ``q_home``
-(tool pointing down, held constant). Measured (scripts/bench_loop.py, computed torque), tracking
-RMSE horizontal / vertical: NODE 0.90 / 1.15 mm, contraction 0.95 / 1.20 mm. Nearly all of it is
-made in the first 0.1 s, while the arm, at rest, accelerates to the field's start speed
-(~0.2 m/s) with saturated torques; a vertical path starts by lifting the arm through shoulder
-and elbow and stays saturated longer (NODE: 4 vs 3 steps; 2.8 vs 2.0 mm behind after 0.1 s).
+(tool pointing down, held constant); the measured tracking on either plane is in reports/arm.md.
 """
 
 from __future__ import annotations
@@ -91,7 +87,7 @@ class Placement:
     # ------------------------------------------------------------------ defaults
     @classmethod
     def auto(cls, robot: RobotModel, points: np.ndarray, plane: str = "auto",
-             size_m: float | None = None) -> "Placement":
+             size_m: float | None = None) -> Placement:
         """The default placement of task points, shape (..., d), on ``robot``.
 
         The bounding box of the points is centred on the tool position at ``q_home`` (a

@@ -1,27 +1,35 @@
-"""Offscreen rendering of a run into an MP4, with the paths drawn into the MuJoCo scene.
+"""Offscreen rendering of runs into MP4s: one run, or several side by side in one video.
 
 The OpenGL back-end is ``MUJOCO_GL`` (``egl`` unless the user set it; see ``sim.gl``). Frames
 are taken at a fixed rate of simulated time (``fps``), independent of the control rate: frame k
-shows the state at t_k = k / fps. Overlays are MuJoCo user geoms added to the ``mjvScene``
-after ``mjv_updateScene``: polylines (capsule connectors), arrows and spheres.
+shows the state at t_k = k / fps. The scene is drawn without shadows, reflections, skybox and
+multisampling (each costs a software renderer, llvmpipe, a large share of its frame time); the
+paths, legend and labels are then drawn into the image in 2-D (``sim.overlay``, projected with
+``sim.camera.project``), on top of the arm. MuJoCo user geoms (``Polyline``, ``Arrow``,
+``Sphere``, drawn in 3-D inside the scene) remain available through ``SceneRenderer.render``.
+Several panels share one GL context and one encoder (``render_panels``).
 """
 
 from __future__ import annotations
 
 import math
 import os
-import tempfile
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any
 
 import mujoco
 import numpy as np
+from PIL import Image
 from tqdm import tqdm
 
+from lfd.io import atomic_path
+from sim.camera import CameraSpec, fixed_camera, project, task_camera
 from sim.errors import RenderError
+from sim.overlay import FrameText, StaticLayer, draw_dynamic, draw_static, tile
+from sim.rollout import FPS, frame_times
 
-WIDTH, HEIGHT, FPS = 640, 480, 30.0
+WIDTH, HEIGHT = 640, 480
 
 
 # ---------------------------------------------------------------- overlays
@@ -97,32 +105,6 @@ def draw(scene: mujoco.MjvScene, overlay: Overlay) -> None:
                             np.asarray(overlay.center, dtype=np.float64), eye, rgba)
 
 
-# ---------------------------------------------------------------- camera
-def framing_camera(points: np.ndarray, base: np.ndarray, normal: np.ndarray | None = None,
-                   fovy_deg: float = 45.0) -> mujoco.MjvCamera:
-    """A free camera framing the workspace: it looks at the centre c of ``points``, shape (K, 3),
-    from the side away from the robot ``base``, shape (3,), 35 deg to the side of the line
-    base -> c, from above (looking down on a horizontal task plane, i.e. ``normal`` ~ z, at
-    45 deg, else at 25 deg), and far enough to show the path and the forearm of the robot:
-    distance = max(2.2 size / tan(fovy / 2), 0.85 |base - c|, 0.3 m)."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    lo, hi = pts.min(0), pts.max(0)
-    c = (lo + hi) / 2
-    size = float(np.max(hi - lo))
-    toward = base - c
-    toward[2] = 0.0
-    az = math.degrees(math.atan2(toward[1], toward[0])) if np.linalg.norm(toward) > 1e-6 else 180.0
-    flat = normal is not None and abs(float(np.asarray(normal)[2])) > 0.7
-    cam = mujoco.MjvCamera()
-    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-    cam.lookat[:] = c
-    cam.azimuth = az + 35.0
-    cam.elevation = -45.0 if flat else -25.0
-    reach = float(np.linalg.norm(base - c))
-    cam.distance = max(2.2 * size / math.tan(math.radians(fovy_deg) / 2), 0.85 * reach, 0.3)
-    return cam
-
-
 # ---------------------------------------------------------------- GL context + renderer
 def open_gl_context(width: int, height: int):  # -> mujoco GLContext
     """An offscreen OpenGL context of the back-end named by ``MUJOCO_GL``, made current."""
@@ -156,9 +138,10 @@ class SceneRenderer:
     """
 
     def __init__(self, model: mujoco.MjModel, width: int = WIDTH, height: int = HEIGHT,
-                 max_geom: int = 4000) -> None:
+                 max_geom: int = 4000, samples: int = 0) -> None:
         model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
         model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
+        model.vis.quality.offsamples = samples  # 4x MSAA costs llvmpipe about half its frame rate
         self.model, self.width, self.height = model, width, height
         self._ctx = open_gl_context(width, height)
         self.scene = mujoco.MjvScene(model, maxgeom=max_geom)
@@ -198,7 +181,7 @@ class SceneRenderer:
             self._ctx.free()
             self._ctx = None
 
-    def __enter__(self) -> "SceneRenderer":
+    def __enter__(self) -> SceneRenderer:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -206,11 +189,6 @@ class SceneRenderer:
 
 
 # ---------------------------------------------------------------- video
-def frame_times(duration_s: float, fps: float = FPS) -> np.ndarray:
-    """t_k = k / fps for k = 0 .. floor(duration fps), shape (K,)."""
-    return np.arange(int(math.floor(duration_s * fps + 1e-9)) + 1) / fps
-
-
 def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: int, height: int,
                 fps: float = FPS) -> int:
     """Encode RGB frames, each shape (height, width, 3) uint8, as H.264 MP4 at ``fps``; the file
@@ -219,80 +197,165 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
     import mediapy
 
     mediapy.set_ffmpeg(imageio_ffmpeg.get_ffmpeg_exe())
-    p = Path(path)
     n = 0
-    tmp: str | None = None
-    try:  # the temporary file goes on any exception, KeyboardInterrupt (Ctrl-C, SIGTERM) included
-        p.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=".mp4", dir=p.parent)
-        os.close(fd)
-        with mediapy.VideoWriter(tmp, shape=(height, width), fps=fps, crf=23) as w:
+    try:  # atomic_path removes the temporary file on any exception, KeyboardInterrupt (Ctrl-C, SIGTERM) included
+        with atomic_path(path, suffix=".mp4") as tmp, \
+                mediapy.VideoWriter(str(tmp), shape=(height, width), fps=fps, crf=23,
+                                    ffmpeg_args=["-preset", "veryfast"]) as w:
             for f in frames:
                 w.add_image(f)
                 n += 1
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes the file private; a video is not
-        os.replace(tmp, p)
     except (OSError, RuntimeError, ValueError) as e:
         if _interrupted(e):  # Ctrl-C also killed ffmpeg, and closing it then failed
             raise KeyboardInterrupt from None
         raise RenderError(f"{path}: cannot write the video ({(str(e).splitlines() or [''])[0]})") from None
-    finally:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
     return n
 
 
 # ---------------------------------------------------------------- a whole run
-DEMO_RGBA = (0.15, 0.35, 0.95, 0.9)
-TRACE_RGBA = (1.0, 0.55, 0.0, 1.0)
-GOAL_RGBA = (0.1, 0.75, 0.2, 1.0)
-PUSH_RGBA = (0.9, 0.1, 0.1, 1.0)
-ARROW_M_PER_N = 0.005
-ROBOT_ALPHA = 0.5
+PUSH_ARROW_FRACTION = 0.35   # the push arrow is this fraction of the path's size long
+PATH_POINTS = 400            # most points per drawn path
+AUTO_FOVY_DEG = 25.0         # the chosen camera is a long lens: the hand near it is not blown up
 
 
-def render_rollout(model: mujoco.MjModel, rollout, demo_world: np.ndarray, path: str | os.PathLike,
-                   base: np.ndarray, normal: np.ndarray | None = None, width: int = WIDTH,
-                   height: int = HEIGHT, fps: float = FPS, progress: bool = False) -> int:
-    """Write the MP4 of a ``sim.rollout.Rollout``: one frame per ``rollout.frame_t`` (a fixed
-    rate of simulated time), the arm half transparent (``ROBOT_ALPHA``) so that it does not hide
-    the paths, drawn with the demonstration (blue, demo_world : (T, 3) m), the
-    tool trace so far (orange), the goal (green sphere) and, during a push (and 0.1 s after), an
-    arrow along the force ending at the pushed body's centre of mass (red, ``ARROW_M_PER_N`` m
-    per N), plus a red dot on the trace where the push began.
-    Returns the number of frames."""
-    data = mujoco.MjData(model)
-    cam = framing_camera(np.concatenate([demo_world, rollout.ee]), base, normal)
-    span = float(np.max(np.ptp(np.concatenate([demo_world, rollout.ee]), axis=0)))
-    radius = max(0.0008, 0.008 * span)
-    px = width / 640.0
-    static: list[Overlay] = [Polyline(decimate(demo_world, 200), DEMO_RGBA, 4.0 * px),
-                             Sphere(rollout.goal_world, 2.5 * radius, GOAL_RGBA)]
-    window = rollout.push_window_s
-    k_push = None if window is None else int(np.searchsorted(rollout.t, window[0]))
+@dataclass(frozen=True)
+class Panel:
+    """What one panel of a video shows: a ``sim.rollout.Rollout``, the field's own rollout from the
+    same start, ``reference`` (K+1, 3) world m (None: not drawn), and its ``title``."""
+
+    rollout: Any
+    reference: np.ndarray | None
+    title: str
+
+
+def panel_grid(n: int) -> tuple[int, int]:
+    """(columns, rows) for n panels: one row up to 3, then as square as possible."""
+    if n <= 3:
+        return n, 1
+    cols = int(math.ceil(math.sqrt(n)))
+    return cols, int(math.ceil(n / cols))
+
+
+def _frame_qpos(rollout: Any, times: np.ndarray, nq: int, qpos_adr: np.ndarray) -> np.ndarray:
+    """qpos, shape (F, nq), at ``times``: the rollout's recorded frames when they are these times,
+    else its first frame with the arm joints (qpos addresses ``qpos_adr``, (n,)) from the control
+    step nearest each time."""
+    ft = np.asarray(rollout.frame_t)
+    if rollout.frame_qpos.shape[1] != nq:
+        raise RenderError("the rollout's qpos does not fit the model")
+    if len(ft) >= len(times) and np.allclose(ft[:len(times)], times, atol=1e-9):
+        return np.asarray(rollout.frame_qpos[:len(times)])
     dt = float(rollout.t[1] - rollout.t[0])
+    k = np.minimum(np.round(times / dt).astype(int), len(rollout.q) - 1)
+    out = np.repeat(np.asarray(rollout.frame_qpos[:1]), len(times), axis=0)
+    out[:, qpos_adr] = rollout.q[k]
+    return out
+
+
+def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np.ndarray,
+                  path: str | os.PathLike, base: np.ndarray, qpos_adr: np.ndarray,
+                  normal: np.ndarray | None = None, width: int = WIDTH, height: int = HEIGHT,
+                  fps: float = FPS, camera: CameraSpec = CameraSpec(), progress: bool = False) -> int:
+    """Write one MP4 of ``width`` x ``height`` with the panels tiled (``panel_grid``), each panel
+    (width / columns) x (height / rows) pixels (rounded down to even numbers), all seen by the same
+    camera (``sim.camera.task_camera`` over every panel's path, or ``camera``) and rendered by one
+    GL context, frame k at t_k = k / fps of simulated time.
+
+    Each panel: the arm (visual meshes; collision geoms hidden), and drawn on top
+    (``sim.overlay``) the demonstration ``demo_world`` (T, 3), the field's rollout, the robot's
+    trace so far, the goal, the push arrow while the push acts (plus 0.1 s) and the point where
+    it began, a legend, the title, the simulated time and the tracking error |p(t) - p_ref(t)|.
+    qpos_adr : (n,) qpos addresses of the arm joints. Returns the number of frames.
+    """
+    if not panels:
+        raise RenderError("nothing to render: no panels")
+    cols, rows = panel_grid(len(panels))
+    pw, ph = (width // cols) // 2 * 2, (height // rows) // 2 * 2
+    if pw < 16 or ph < 16:
+        raise RenderError(f"{width}x{height} is too small for {len(panels)} panels")
+    duration = min(float(p.rollout.t[-1]) for p in panels)
+    times = frame_times(duration, fps)
+    qpos = [_frame_qpos(p.rollout, times, model.nq, np.asarray(qpos_adr)) for p in panels]
+    everything = [demo_world] + [p.rollout.ee for p in panels] + [p.reference for p in panels
+                                                                   if p.reference is not None]
+    pts = np.concatenate(everything)
+    span = float(np.max(np.ptp(pts, axis=0)))
+    fovy = float(model.vis.global_.fovy)
+    if camera.orbit is None and camera.name != "auto":
+        cam = fixed_camera(model, camera.name)
+    else:
+        if camera.orbit is None:
+            fovy = AUTO_FOVY_DEG
+        cam = task_camera(pts, base, normal, pw, ph, fovy, camera)
+    data = mujoco.MjData(model)
+    demo_d = decimate(np.asarray(demo_world), PATH_POINTS)
+    layers = [StaticLayer(pw, ph) for _ in panels]
 
     def frames() -> Iterable[np.ndarray]:
-        states = tqdm(zip(rollout.frame_t, rollout.frame_qpos), total=len(rollout.frame_t), desc="video",
-                      unit="frame", disable=not progress, leave=False)
-        with SceneRenderer(model, width, height) as r:
-            for t, qpos in states:
-                data.qpos[:] = qpos
-                mujoco.mj_forward(model, data)
-                k = min(int(round(t / dt)), len(rollout.ee) - 1)
-                overlays = list(static)
-                if k > 0:
-                    overlays.append(Polyline(decimate(rollout.ee[:k + 1], 300), TRACE_RGBA, 5.0 * px))
-                if window is not None and k >= k_push:
-                    overlays.append(Sphere(rollout.ee[k_push], 1.8 * radius, PUSH_RGBA))
-                    if window[0] - 1e-9 <= t < window[1] + 0.1:
-                        vec = ARROW_M_PER_N * rollout.push_force
-                        overlays.append(Arrow(data.xipos[rollout.push_body] - vec, vec, PUSH_RGBA, 4.0 * radius))
-                yield r.render(data, cam, overlays, ROBOT_ALPHA)
+        bar = tqdm(total=len(times), desc="video", unit="frame", disable=not progress, leave=False)
+        saved = float(model.vis.global_.fovy)
+        model.vis.global_.fovy = fovy   # the free camera's field of view (render-only setting)
+        with SceneRenderer(model, pw, ph) as r:
+            for j, t in enumerate(times):
+                images = []
+                for p, q, layer in zip(panels, qpos, layers):
+                    data.qpos[:] = q[j]
+                    mujoco.mj_kinematics(model, data)
+                    images.append(_panel_frame(r, data, cam, p, layer, demo_d, t, span))
+                bar.update(1)
+                yield images[0] if len(images) == 1 else tile(images, cols)
+        model.vis.global_.fovy = saved
+        bar.close()
 
-    return write_video(path, frames(), width, height, fps)
+    return write_video(path, frames(), pw * cols, ph * rows, fps)
+
+
+def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, panel: Panel,
+                 layer: StaticLayer, demo: np.ndarray, t: float, span: float) -> np.ndarray:
+    """One panel's image at time t: the scene, the static layer (drawn on the first call), then
+    the overlays that change."""
+    ro = panel.rollout
+    image = r.render(data, cam)
+    dt = float(ro.t[1] - ro.t[0])
+    k = min(int(round(t / dt)), len(ro.ee) - 1)
+    w, h = r.width, r.height
+    proj = lambda x: project(r.scene, x, w, h)  # noqa: E731
+    if not hasattr(layer, "mask"):
+        field_uv = None if panel.reference is None else proj(decimate(panel.reference, PATH_POINTS))
+        draw_static(layer.image, proj(demo), field_uv, proj(ro.goal_world[None])[0], panel.title)
+        layer.freeze()
+    layer.stamp(image)
+    trace = decimate(ro.ee[:k + 1], PATH_POINTS)
+    if len(trace) and not np.array_equal(trace[-1], ro.ee[k]):
+        trace = np.vstack([trace, ro.ee[k]])
+    window = ro.push_window_s
+    push_uv = dot_uv = None
+    if window is not None and ro.push_force is not None:
+        k0 = int(np.searchsorted(ro.t, window[0] - 1e-9))
+        if k >= k0:
+            dot_uv = proj(ro.ee[k0][None])[0]
+        if window[0] - 1e-9 <= t < window[1] + 0.1:
+            head = ro.ee[k]   # at the tool (the pushed body's centre may be far from the path)
+            force = np.asarray(ro.push_force, dtype=np.float64)
+            vec = PUSH_ARROW_FRACTION * max(span, 0.05) * force / max(float(np.linalg.norm(force)), 1e-12)
+            ends = proj(np.array([head - vec, head]))
+            push_uv = (ends[0], ends[1])
+    img = Image.fromarray(image)
+    err = None if panel.reference is None else float(np.linalg.norm(ro.ee[k] - panel.reference[k]))
+    draw_dynamic(img, proj(trace), push_uv, dot_uv, FrameText(panel.title, t, err))
+    return np.asarray(img)
+
+
+def render_rollout(model: mujoco.MjModel, rollout: Any, demo_world: np.ndarray, path: str | os.PathLike,
+                   base: np.ndarray, normal: np.ndarray | None = None, width: int = WIDTH,
+                   height: int = HEIGHT, fps: float = FPS, progress: bool = False,
+                   reference: np.ndarray | None = None, title: str = "",
+                   camera: CameraSpec = CameraSpec(), qpos_adr: np.ndarray | None = None) -> int:
+    """The MP4 of one ``sim.rollout.Rollout`` (``render_panels`` with one panel); returns the
+    number of frames. ``reference`` (K+1, 3): the field's own rollout (None: not drawn)."""
+    adr = np.arange(rollout.q.shape[1]) if qpos_adr is None else qpos_adr
+    return render_panels(model, [Panel(rollout, reference, title)], demo_world, path, base, adr, normal,
+                         width, height, fps, camera, progress=progress)
 
 
 def _interrupted(e: BaseException) -> bool:

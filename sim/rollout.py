@@ -3,14 +3,19 @@
 Every control step k (t_k = k dt):
 
 1. read q, qdot of the arm joints from MuJoCo;
-2. p = FK(q) with Pinocchio (``controller.measure``);
+2. p = FK(q): MuJoCo's tool site after ``mj_step1`` (see 6; equal to Pinocchio's FK to ~1e-16 m),
+   else Pinocchio (``controller.measure``); the Jacobian is Pinocchio's;
 3. v = f(x - dg) with x = A^T (p - o) / s the MEASURED tool position in task space
    (dg: a goal shift, see ``sim.perturbations``); a field with a phase (``lfd.learners.tracking``)
    runs through ``PhaseLoop``, which evaluates Eq. (T3) at its phase s and then advances s by one
    control step of Eq. (T4), so the phase waits while the measured tool is held back;
-4. qdot_ref = IK(q, twist(v)) and the actuator command (``FieldTrackingTask.apply``);
+4. qdot_ref = IK(q, twist(v)) and the actuator command (``FieldTrackingTask.apply``, through the
+   controller's compiled fast path ``FieldController.fast_command``);
 5. the step's perturbations (push, joint-velocity noise);
 6. ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` (no dm_control wrapper);
+   with computed torque from MuJoCo's dynamics (``dynamics="mujoco"``, the default) the step is
+   split: ``mj_step1`` before step 1 (so the mass matrix and ``qfrc_bias`` describe this state) and
+   ``mj_step2`` after step 5 (then ``mj_step`` for any further physics steps of the control step);
    during a ``Hold`` window the arm joints are then clamped at rest where the hold began (an
    immovable obstacle);
    a NaN/unstable state or a bad control (MuJoCo warnings mjWARN_BADQPOS/QVEL/QACC/CTRL)
@@ -21,9 +26,12 @@ States are recorded at every control step; full ``qpos`` at the video frame time
 
 from __future__ import annotations
 
+import math
 import time
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -31,8 +39,15 @@ from dm_control.rl import control
 from tqdm import tqdm
 
 from sim.errors import SimulationError
-from sim.render import FPS, frame_times
 from sim.task import FieldTrackingTask
+
+FPS = 30.0  # default rate (frames per simulated second) at which a rollout keeps the full qpos for video
+
+
+def frame_times(duration_s: float, fps: float = FPS) -> np.ndarray:
+    """t_k = k / fps for k = 0 .. floor(duration fps), shape (K,)."""
+    return np.arange(int(math.floor(duration_s * fps + 1e-9)) + 1) / fps
+
 
 _DIVERGENCE = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL)
@@ -49,7 +64,8 @@ class Rollout:
     task units; goal_world : (3,); push_window_s : (t0, t1) or None; push_force : (3,) N or None;
     push_body : MuJoCo body id (-1: none); ik_limit_hits : IK solves that clamped to a limit;
     joint_limit_violations : control steps with an arm joint outside [q_min, q_max] in MuJoCo;
-    phase : (K+1,) the phase s of a ``PhaseLoop`` at each step, else None; hold_window_s : (t0, t1) or None.
+    phase : (K+1,) the phase s of a ``PhaseLoop`` at each step, else None; hold_window_s : (t0, t1) or None;
+    cpu_s : the loop's CPU time (this thread; ``time.thread_time``), which machine load does not inflate.
     """
 
     t: np.ndarray
@@ -69,6 +85,7 @@ class Rollout:
     joint_limit_violations: int
     phase: np.ndarray | None = None
     hold_window_s: tuple[float, float] | None = None
+    cpu_s: float | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -153,21 +170,35 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
     q_hold = None
     bar = tqdm(total=K, desc=desc, disable=not progress, unit="step", leave=False, mininterval=0.5)
     clock = time.perf_counter
+    split = ctl.uses_mj_dynamics
+    step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
+    ctl.bind(d)
+    # after mj_step1 the tool pose is MuJoCo's (Pinocchio computes the IK's Jacobian); else Pinocchio FK
+    measure, to_task, apply = (ctl.measure_site if split else ctl.measure), ctl.to_task, task.apply
+    qpos = d.qpos          # one view for the whole loop (each attribute access builds a new one)
     try:
+        cpu0 = time.thread_time()
         start = clock()
         for k in range(K):
             t0 = clock()
-            q = d.qpos[qadr]
-            p = ctl.measure(q)
+            if split:
+                step1(m, d)
+            q = qpos[qadr]
+            p = measure(q)
             Q[k] = q
             P[k] = p
             if k == next_frame:
-                FQ[j] = d.qpos
+                FQ[j] = qpos
                 j += 1
                 next_frame = int(fsteps[j]) if j < len(fsteps) else -1
-            x = ctl.to_task(p)
-            task.apply(d, q, d.qvel[dadr], field_fn(x - shift) if shifted else field_fn(x))
-            mujoco.mj_step(m, d, n_sub)
+            x = to_task(p)
+            apply(d, q, None, field_fn(x - shift) if shifted else field_fn(x), m)
+            if split:
+                step2(m, d)
+                if n_sub > 1:
+                    step(m, d, n_sub - 1)
+            else:
+                step(m, d, n_sub)
             if h0 <= k < h1:
                 if q_hold is None:
                     q_hold = Q[h0].copy()
@@ -180,9 +211,13 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
             if k % 250 == 249:
                 bar.update(250)
         wall = clock() - start
+        cpu = time.thread_time() - cpu0
     finally:
         mujoco.set_mju_user_warning(prev_handler)
         bar.close()
+    if messages:  # MuJoCo's other warnings (e.g. too many contacts): said once, not swallowed
+        warnings.warn(f"MuJoCo warned {len(messages)} time(s) during the rollout: {messages[0].strip()}",
+                      RuntimeWarning, stacklevel=2)
     q = d.qpos[qadr]
     Q[K] = q
     P[K] = ctl.measure(q)
@@ -201,7 +236,7 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
         goal_world=task.goal_world.copy(), push_window_s=s.push_window_s,
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,
         ik_limit_hits=int(getattr(ctl.ik, "limit_hits", 0) - hits0), joint_limit_violations=violations,
-        phase=phase, hold_window_s=None if hold is None else (h0 * dt, h1 * dt))
+        phase=phase, hold_window_s=None if hold is None else (h0 * dt, h1 * dt), cpu_s=cpu)
 
 
 def _divergence_message(d: mujoco.MjData, k: int, dt: float, bad: list[int]) -> str:

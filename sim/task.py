@@ -19,18 +19,19 @@
   - ``goal`` (d,): the goal in task coordinates (after a ``GoalShift``);
   - ``joint_limit`` (n,): 1.0 where the joint is outside [q_min, q_max], else 0.0;
   - ``field_velocity`` (d,), only with a ``field``: the field's velocity at ``task_position``
-    (goal-shifted like ``sim.execute``), i.e. the action that ``sim.execute`` would take.
+    (goal-shifted like ``sim.rollout.execute``), i.e. the action that ``sim.rollout.execute`` would take.
 
 * Reward: 1 within 5 mm of the (shifted) goal, falling off as a Gaussian over 5 cm
   (``dm_control.utils.rewards.tolerance``).
 * Restorable state: ``physics.get_state()`` holds the MuJoCo state only. The computed-torque
   controller also remembers the previous joint-velocity reference, and the task its control-step
   index (push and noise schedule) and the applied push force; restoring the physics alone replays
-  differently (Panda, computed torque: 0.63 mm off within 0.9 s, 6.5 mm with a push in that window). ``FieldTrackingTask.get_state`` /
-  ``set_state`` save and restore all of it (MuJoCo's full ``mjSTATE_INTEGRATION`` state plus the
-  controller and schedule), so a replay is exact with the ``dls`` IK (stateless). Not included:
-  the Environment's own step counter (its time limit counts from its last reset), the random
-  start generator, and any state of the ``pink`` IK's QP solver.
+  differently (Panda, computed torque: 0.63 mm off within 0.9 s, 6.5 mm with a push in that
+  window). ``FieldTrackingTask.get_state`` / ``set_state`` save and restore all of it (MuJoCo's
+  full ``mjSTATE_INTEGRATION`` state plus the controller and schedule), so a replay is exact with
+  the ``dls`` IK (stateless). Not included: the Environment's own step counter (its time limit
+  counts from its last reset), the random start generator, and any state of the ``pink`` IK's QP
+  solver.
 
 The fast loop (``sim.rollout``) uses these same Physics and Task objects but calls
 ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly: ``Environment.step``
@@ -41,7 +42,8 @@ cost per control step (scripts/bench_loop.py).
 from __future__ import annotations
 
 import collections
-from typing import TYPE_CHECKING, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -82,7 +84,7 @@ class ArmPhysics(dm_mujoco.Physics):
     robot: RobotModel
 
     @classmethod
-    def from_robot(cls, robot: RobotModel) -> "ArmPhysics":
+    def from_robot(cls, robot: RobotModel) -> ArmPhysics:
         physics = cls.from_xml_string(robot.mjcf_xml, robot.mj_assets or None)
         physics.robot = robot
         physics._ee_site = physics.model.name2id(robot.mj_ee_site, "site")
@@ -126,7 +128,7 @@ class FieldTrackingTask(control.Task):
                  perturbations: Sequence[Perturbation] = (), rotation_ref: np.ndarray | None = None,
                  gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
-                 field: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+                 field: Callable[[np.ndarray], np.ndarray] | None = None, dynamics: str = "mujoco") -> None:
         model = robot.mj_model if mj_model is None else mj_model
         self.robot, self.placement, self.control_dt = robot, placement, float(control_dt)
         self.n_steps = int(round(duration_s / control_dt))
@@ -157,7 +159,7 @@ class FieldTrackingTask(control.Task):
         self.q_start = q0
         self.controller = FieldController(robot, placement, control_dt, ik=ik, actuation=actuation,
                                           rotation_ref=rotation_ref, gains=gains, feedforward=feedforward,
-                                          mj_model=model)
+                                          mj_model=model, dynamics=dynamics)
         self.step_index = 0
         self.clipped_actions = 0
         self._qadr, self._dadr = robot.mj_qpos_adr, robot.mj_dof_adr
@@ -197,11 +199,16 @@ class FieldTrackingTask(control.Task):
         self.clipped_actions = 0
 
     def before_step(self, action: np.ndarray, physics: ArmPhysics) -> None:
+        """Check the action and write the commands; MuJoCo's computed torque (``dynamics="mujoco"``)
+        first runs ``mj_step1`` for M(q) and the bias forces at this state (the ``mj_step`` that
+        follows recomputes them, identically)."""
         v = self.check_action(action)
-        data = physics.data.ptr
+        model, data = physics.model.ptr, physics.data.ptr
+        if self.controller.uses_mj_dynamics:
+            mujoco.mj_step1(model, data)
         q = data.qpos[self._qadr]
         self.controller.measure(q)
-        self.apply(data, q, data.qvel[self._dadr], v)
+        self.apply(data, q, data.qvel[self._dadr], v, model)
 
     def after_step(self, physics: ArmPhysics) -> None:
         """Position kinematics at the new state, so ``ee_position`` (site_xpos) describes the
@@ -283,11 +290,20 @@ class FieldTrackingTask(control.Task):
         self.step_index = int(round(state[-1]))
 
     # ---------------------------------------------------------------- shared with the fast loop
-    def apply(self, data: mujoco.MjData, q: np.ndarray, qdot: np.ndarray, v: np.ndarray) -> None:
-        """Write the actuator commands for task velocity v, shape (d,), at the measured q, qdot
-        (``controller.measure(q)`` already called), and this control step's perturbations."""
+    def apply(self, data: mujoco.MjData, q: np.ndarray, qdot: np.ndarray | None, v: np.ndarray,
+              model: mujoco.MjModel | None = None) -> None:
+        """Write the actuator commands for task velocity v, shape (d,), at the measured q, qdot,
+        shape (n,) (``controller.measure(q)`` already called), and this control step's perturbations.
+
+        With ``model``: the controller's fused path (``FieldController.fast_command``); computed
+        torque with ``dynamics="mujoco"`` then needs ``mj_step1`` done at this state, and the caller
+        must run ``mj_step2`` next: joint-velocity noise, added after the command, reruns
+        ``mj_step1`` so the physics sees the noisy velocity (as a plain ``mj_step`` would)."""
         k = self.step_index
-        data.ctrl[self._acts] = self.controller.command(q, qdot, v)
+        if model is None:
+            data.ctrl[self._acts] = self.controller.command(q, data.qvel[self._dadr] if qdot is None else qdot, v)
+        else:
+            self.controller.fast_command(model, data, q, v)
         s = self.schedule
         if s.push_body >= 0:
             k0, k1 = s.push_steps
@@ -297,6 +313,8 @@ class FieldTrackingTask(control.Task):
                 data.xfrc_applied[s.push_body] = 0.0
         if s.qvel_noise is not None and k < len(s.qvel_noise):
             data.qvel[self._dadr] += s.qvel_noise[k]
+            if model is not None and self.controller.uses_mj_dynamics:
+                mujoco.mj_step1(model, data)
         self.step_index = k + 1
 
 
@@ -307,7 +325,8 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                      duration_s: float | None = None, settle_s: float = 1.5, ik: str = "dls",
                      actuation: str | None = None, perturbations: Sequence[Perturbation] = (),
                      rotation_ref: np.ndarray | None = None, gains: Gains = Gains(),
-                     feedforward: bool = True, physics: ArmPhysics | None = None) -> control.Environment:
+                     feedforward: bool = True, physics: ArmPhysics | None = None,
+                     dynamics: str = "mujoco") -> control.Environment:
     """A dm_control Environment of ``robot`` following task velocities (see the module docstring).
 
     One call from names::
@@ -327,7 +346,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
     demos : str or DemoSet, optional
         A demo SPEC (``spiral``, ``lasa:Angle``, a file; see ``lfd.load_demos``) or a DemoSet.
     learner_field : VelocityField, optional
-        Adds the ``field_velocity`` observation (the action ``sim.execute`` would take) and
+        Adds the ``field_velocity`` observation (the action ``sim.rollout.execute`` would take) and
         gives the goal.
     seed, start_radius : random initial states: with ``start_radius`` > 0 (task units) each
         episode starts uniformly in that ball around the start, drawn from ``seed``.
@@ -336,6 +355,8 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
     control_hz : the control rate, an integer divisor of the physics rate; the Environment has
         ``legacy_step=False`` (a plain ``mj_step`` per physics step).
     physics : an ``ArmPhysics.from_robot(robot)`` to reuse one compiled model across environments.
+    dynamics : computed torque from MuJoCo's own M(q) and bias forces (``mujoco``, the default) or
+        Pinocchio's RNEA (``pinocchio``); see ``sim.controller``.
     Others as ``FieldTrackingTask`` and ``sim.controller.FieldController``.
     """
     if isinstance(robot, str):
@@ -379,6 +400,6 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                              actuation=actuation, perturbations=perturbations, rotation_ref=rotation_ref,
                              gains=gains, feedforward=feedforward, mj_model=physics.model.ptr,
                              start_radius=start_radius, seed=seed,
-                             field=None if learner_field is None else learner_field.point_fn())
+                             field=None if learner_field is None else learner_field.point_fn(), dynamics=dynamics)
     return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
                                legacy_step=False)

@@ -6,7 +6,7 @@ import os
 
 os.environ.setdefault("MKL_CBWR", "COMPATIBLE")  # before torch loads MKL, as ``import lfd`` does
 
-from typing import Callable, Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -15,6 +15,7 @@ import torch
 import lfd
 from lfd.field import VelocityField
 from lfd.normalization import Normalization
+from lfd.threads import torch_threads
 
 
 @pytest.fixture(scope="module")
@@ -22,10 +23,8 @@ def one_thread() -> Iterator[None]:
     """Small-batch torch on a shared 2-core machine: a second intra-op thread measured 10-80x
     slower rollouts under load (threads wait on each other). Modules that train or roll out
     use it with ``pytestmark = pytest.mark.usefixtures("one_thread")``."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+    with torch_threads(1):
+        yield
 
 
 @pytest.fixture(scope="module")

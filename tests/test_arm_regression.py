@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-import sim  # noqa: F401  (sets MUJOCO_GL first)
 import lfd
+import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import load_robot
 
 GOLDEN = Path(__file__).parent / "golden" / "tracking.json"

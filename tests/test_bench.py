@@ -17,10 +17,10 @@ import pytest
 from lfd.bench import protocol as P
 from lfd.bench.dmp import fit_dmp, make_config
 from lfd.bench.evaluate import METRICS
-from lfd.bench.runner import finite_or_none
 from lfd.cli import main
 from lfd.demos import lasa
 from lfd.errors import ConfigError
+from lfd.io import finite_or_none
 from lfd.metrics import rmse
 
 ANGLE_RMSE_CONTRACTION_MAX = 7.0  # mm, contraction at --quick settings on Angle (measured 5.92 at KAPPA = 100)
@@ -208,3 +208,58 @@ def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
     if isinstance(obj, list):
         return {k: v for i, val in enumerate(obj) for k, v in _numbers(val, f"{prefix}/{i}").items()}
     return {prefix: float(obj)} if isinstance(obj, (int, float)) else {}
+
+
+# ---------------------------------------------------------------- the Ray executor (issue 15)
+
+def test_ray_executor_matches_the_local_pool_and_resumes(quick: dict[str, Any], tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """Two DMP cells of the quick run again on a local Ray instance (2 CPUs; the DMP keeps it fast:
+    a contraction cell costs minutes on a loaded CI box): the same numbers as the local process
+    pool to 1e-6 (other processes: a tolerance), then a rerun computes nothing."""
+    pytest.importorskip("ray")
+    argv = ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle,Sine", "--executor", "ray",
+            "--workers", "2", "--json", str(tmp_path / "r.json"), "--report", str(tmp_path / "r.md")]
+    assert main(argv) == 0
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["run"]["executor"] == "ray" and r["run"]["computed"] == 2
+    local = {(c["learner"], c["shape"]): c for c in quick["json"]["results"]}
+    for cell in r["results"]:
+        ref = local[(cell["learner"], cell["shape"])]
+        assert cell["hash"] == ref["hash"]
+        for key in ("train", "per_demo", "convergence"):
+            if key not in cell:
+                continue
+            a, b = _numbers(cell[key]), _numbers(ref[key])
+            assert a.keys() == b.keys()
+            np.testing.assert_allclose([a[k] for k in a], [b[k] for k in a], rtol=1e-6, atol=1e-12,
+                                       err_msg=f"{cell['learner']}/{key}")
+    capsys.readouterr()
+    assert main(argv) == 0                                  # resumes: every cell from the cache, no Ray start
+    assert "0 cell(s) computed, 2 from" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--executor", "dask"], "invalid choice"),
+    (["--executor", "ray", "--address", "nohost"], "HOST:PORT"),
+    (["--executor", "ray", "--address", "10.0.0.1:99999"], "HOST:PORT"),
+    (["--address", "10.0.0.1:6379"], "needs --executor ray"),
+    (["--executor", "ray", "--address", "127.0.0.1:1"], "no Ray cluster reachable"),   # probed, no ray.init
+    (["--workers", "100000"], "--workers"),
+])
+def test_bad_executor_options_are_one_line_exit_2(argv: list[str], message: str, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["bench", "lasa", "--learner", "dmp", *argv, "--json", str(tmp_path / "r.json"),
+                 "--report", str(tmp_path / "r.md")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and message in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_the_core_does_not_import_ray() -> None:
+    """``import lfd`` and the bench runner leave Ray alone (it is imported by the Ray executor only)."""
+    import subprocess
+    import sys
+
+    code = "import sys, lfd, lfd.bench.runner, lfd.commands.bench, lfd.cli; sys.exit('ray' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0

@@ -256,3 +256,41 @@ def test_ctrl_c_during_startup_imports_is_no_traceback(monkeypatch: pytest.Monke
     code = main(["eval", "m.pt", "--demos", "spiral"])
     monkeypatch.undo()
     assert code == 130 and capsys.readouterr().err == "lfd: interrupted\n"
+
+
+# ---------------------------------------------------------------- lfd.io, the tree-wide writers
+
+def test_write_json_is_strict_and_atomic(tmp_path: Path) -> None:
+    from lfd.io import json_text, write_json
+
+    obj = {"a": math.inf, "b": [1.0, -math.inf, math.nan], "c": np.float64(np.nan), "d": np.arange(3),
+           "e": (np.int64(2), "x"), "f": {"g": np.array([0.5, np.inf])}}
+    write_json(tmp_path / "out" / "r.json", obj, indent=1)
+    assert json.loads((tmp_path / "out" / "r.json").read_text()) == {
+        "a": None, "b": [1.0, None, None], "c": None, "d": [0, 1, 2], "e": [2, "x"], "f": {"g": [0.5, None]}}
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["r.json"]   # no temporary left
+    with pytest.raises(TypeError):   # not JSON-able: refused, never written as something else
+        json_text({"x": object()})
+
+
+def test_atomic_path_replaces_only_on_success(tmp_path: Path) -> None:
+    from lfd.io import atomic_path
+
+    target = tmp_path / "v.mp4"
+    target.write_bytes(b"old")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_path(target, suffix=".mp4") as tmp:
+            assert tmp.parent == tmp_path and tmp.suffix == ".mp4"
+            tmp.write_bytes(b"partial")
+            raise KeyboardInterrupt
+    assert target.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
+    with atomic_path(target, suffix=".mp4") as tmp:
+        tmp.write_bytes(b"new")
+    assert target.read_bytes() == b"new" and sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]
+    assert (target.stat().st_mode & 0o777) == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

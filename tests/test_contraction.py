@@ -19,8 +19,14 @@ import torch
 
 import lfd
 from lfd.errors import ConfigError
-from lfd.learners.contraction import (ContractionConfig, ContractionField, ContractionModule, RateFeasibilityWarning,
-                                      feasible_rate, lipschitz_bound)
+from lfd.learners.contraction import (
+    ContractionConfig,
+    ContractionField,
+    ContractionModule,
+    RateFeasibilityWarning,
+    feasible_rate,
+    lipschitz_bound,
+)
 from lfd.learners.flows import BoundedFlow, bounded_flow_numpy
 
 WEAK, STRONG = 0.5, 1.0
@@ -194,7 +200,7 @@ def test_metric_is_jphi_t_jphi_in_user_units_and_within_its_bounds(weak: Contrac
 # ---------------------------------------------------------------- fit quality and guarantees
 
 def test_weak_model_reproduces_the_spiral(weak: ContractionField, spiral: lfd.DemoSet) -> None:
-    xs = weak.exact_rollout(spiral.x[:, 0], spiral.t[0])     # the spiral's demos share their times
+    xs = weak.closed_form_rollout(spiral.x[:, 0], spiral.t[0])     # the spiral's demos share their times
     rmse = float(np.sqrt(((xs - spiral.x) ** 2).sum(-1).mean()))
     assert rmse < 0.2           # measured 0.11 at KAPPA = 100 (the spiral spans 1.84; 0.02 at KAPPA = inf)
     assert np.linalg.norm(xs[:, -1] - spiral.goal, axis=1).max() < 0.2
@@ -206,7 +212,7 @@ def test_rk4_at_the_control_step_tracks_the_exact_flow(strong: ContractionField,
     corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])
     starts = np.vstack([corners, np.random.default_rng(3).uniform(lo, hi, size=(12, 2))])
     t = np.arange(0.0, 3.0 + 1e-9, 0.002)
-    exact = strong.exact_rollout(starts, t)
+    exact = strong.closed_form_rollout(starts, t)
     rk4 = strong.rollout(starts, t, method="rk4")
     extent = float((spiral.x.max((0, 1)) - spiral.x.min((0, 1))).max())
     assert np.abs(exact - rk4).max() < 1e-3 * extent
@@ -221,7 +227,7 @@ def test_strong_rate_converges_measurably_faster(weak: ContractionField, strong:
     starts = np.random.default_rng(5).uniform(lo, hi, size=(10, 2))
     fitted = {}
     for field in (weak, strong):
-        d = np.linalg.norm(field.exact_rollout(starts, t) - spiral.goal, axis=-1)     # (10, T)
+        d = np.linalg.norm(field.closed_form_rollout(starts, t) - spiral.goal, axis=-1)     # (10, T)
         bound = math.sqrt(field.condition_bound) * np.exp(-field.rate * t) * d[:, :1]
         assert (d <= bound * (1 + 1e-6)).all()
         fitted[field.rate] = -np.polyfit(t[20:], np.log(d[:, 20:]).T, 1)[0]
@@ -241,7 +247,7 @@ def test_worst_transient_growth_stays_below_the_analytic_constant(weak: Contract
         u = rng.normal(size=(200, 2))
         u /= np.linalg.norm(u, axis=1, keepdims=True)
         eps = 1e-6 * float((hi - lo).max())
-        xs = field.exact_rollout(np.vstack([x0, x0 + eps * u]), t)
+        xs = field.closed_form_rollout(np.vstack([x0, x0 + eps * u]), t)
         growth = np.linalg.norm(xs[200:] - xs[:200], axis=-1) / eps             # (200, T)
         assert np.isfinite(growth).all()
         bound = math.sqrt(field.condition_bound) * np.exp(-field.rate * t)
@@ -254,7 +260,7 @@ def test_every_start_around_the_demos_converges(weak: ContractionField, strong: 
     lo, hi = spiral.bounds(0.5)
     starts = np.random.default_rng(7).uniform(lo, hi, size=(100, 2))
     for field in (weak, strong):
-        end = field.exact_rollout(starts, np.array([0.0, 10.0, 40.0]))
+        end = field.closed_form_rollout(starts, np.array([0.0, 10.0, 40.0]))
         dist = np.linalg.norm(end - spiral.goal, axis=-1)
         assert np.isfinite(dist).all()
         assert dist[:, 2].max() < 1e-3

@@ -14,7 +14,6 @@ from lfd.demos import DemoSet, lasa, load_demos, load_file, save_file, spiral, s
 from lfd.errors import DemoError, ModelError
 from lfd.modelfile import FORMAT_VERSION, atomic_write, load_payload, payload_checksum, save_payload
 
-
 # ---------------------------------------------------------------- generators and LASA
 
 def test_spiral_shapes_goal_and_determinism() -> None:
@@ -39,8 +38,8 @@ def test_spiral3d_shapes_goal_and_determinism() -> None:
 
 
 def test_every_lasa_shape_loads() -> None:
-    assert len(lfd.LASA_SHAPES) == 30
-    for name in lfd.LASA_SHAPES:
+    assert len(lfd.demos.LASA_SHAPES) == 30
+    for name in lfd.demos.LASA_SHAPES:
         d = lasa(name)
         assert d.x.shape == (7, 1000, 2), name
         assert d.name == f"lasa:{name}"

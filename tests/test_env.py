@@ -1,6 +1,6 @@
 """The dm_env / dm_control task (issue 12): dm_env's own conformance tests on three arms, fresh
 kinematics in the observation, checked actions, random initial states, the joint-limit flag, the
-restorable state, the one-call constructor, agreement with ``sim.execute``, and gymnasium through
+restorable state, the one-call constructor, agreement with ``sim.rollout.execute``, and gymnasium through
 shimmy (an optional extra; skipped when it is absent).
 
 The fields are hand-made linear sinks (no training), so the tests are fast.
@@ -18,13 +18,14 @@ import pytest
 import torch
 from dm_env import test_utils
 
-import sim  # noqa: F401  (sets MUJOCO_GL first)
 import lfd
+import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import Kinematics, RobotModel, load_robot
+from sim.rollout import execute
 
 EPISODE_S = 0.1                   # 50 control steps at 500 Hz
 FK_TOL_M = 1e-9                   # issue 12: observation vs forward kinematics of the observed joints
-# sim.execute vs a plain dm_env loop: the paths differ only in the FK that feeds the field (Pinocchio
+# sim.rollout.execute vs a plain dm_env loop: the paths differ only in the FK that feeds the field (Pinocchio
 # in execute, the MuJoCo site in the observation; they agree to ~5e-16 m) and in float rounding, which
 # this contracting closed loop does not amplify. Measured over 1 s: 4.4e-16 m (planar), 6.7e-16 m
 # (Panda), 5.6e-16 m (UR5); with the stale site of before issue 12: 0.45, 0.30, 0.30 mm. 1e-9 m leaves
@@ -49,12 +50,12 @@ def sink_field(demos: lfd.DemoSet) -> lfd.VelocityField:
     return lfd.VelocityField(LinearSink(demos.dim), lfd.Normalization.from_points(demos.x, demos.goal), "node", {})
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def demos() -> lfd.DemoSet:
     return lfd.spiral(n_demos=2, n_samples=60, duration=1.0)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def robot(name: str) -> RobotModel:
     if name == "ur5":   # a URDF arm from example-robot-data, loaded from its file like any user URDF
         root = Path(importlib.metadata.distribution("example-robot-data").locate_file(
@@ -216,7 +217,7 @@ def test_task_state_restores_the_controller_too() -> None:
         task.set_state(physics, saved[:-1])
 
 
-# ---------------------------------------------------------------- one call, and sim.execute
+# ---------------------------------------------------------------- one call, and sim.rollout.execute
 def test_make_environment_in_one_call() -> None:
     env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
     ts = env.reset()
@@ -239,7 +240,7 @@ def test_make_environment_in_one_call() -> None:
 def test_execute_and_a_plain_dm_env_loop_agree(name: str) -> None:
     field = sink_field(demos())
     env = environment(name, duration_s=1.0)
-    ro = sim.execute(env, field.point_fn())
+    ro = execute(env, field.point_fn())
     f = field.point_fn()
     ts = env.reset()
     ee = [ts.observation["ee_position"]]

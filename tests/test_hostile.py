@@ -70,7 +70,7 @@ MUTATIONS = dict(cuts=st.lists(st.tuples(st.integers(0, 2**31), st.integers(0, 2
 def test_fuzzed_csv_is_valid_or_a_one_line_error(files, tmp_path, cuts, tail) -> None:  # type: ignore[no-untyped-def]
     path = tmp_path / "f.csv"
     path.write_bytes(_mutate(files["d.csv"], cuts, tail))
-    _one_line_or_valid(lfd.load_file, path)
+    _one_line_or_valid(lfd.demos.load_file, path)
 
 
 @FUZZ
@@ -78,7 +78,7 @@ def test_fuzzed_csv_is_valid_or_a_one_line_error(files, tmp_path, cuts, tail) ->
 def test_fuzzed_npz_is_valid_or_a_one_line_error(files, tmp_path, cuts, tail) -> None:  # type: ignore[no-untyped-def]
     path = tmp_path / "f.npz"
     path.write_bytes(_mutate(files["d.npz"], cuts, tail))
-    _one_line_or_valid(lfd.load_file, path)
+    _one_line_or_valid(lfd.demos.load_file, path)
 
 
 @FUZZ
@@ -111,7 +111,7 @@ def test_npz_with_odd_arrays_is_valid_or_a_one_line_error(tmp_path, arrays) -> N
             "bool": lambda a: a > 0, "nan": lambda a: a * np.nan}
     base = {"t": good.t, "x": good.x, "y": good.x}
     np.savez(tmp_path / "a.npz", **{k: make[v](base[k]) for k, v in arrays.items()})
-    _one_line_or_valid(lfd.load_file, tmp_path / "a.npz")
+    _one_line_or_valid(lfd.demos.load_file, tmp_path / "a.npz")
 
 
 def test_fuzz_found_nothing_silly_in_plain_cases(tmp_path: Path) -> None:
@@ -120,7 +120,7 @@ def test_fuzz_found_nothing_silly_in_plain_cases(tmp_path: Path) -> None:
              "bin.csv": bytes(range(256)) * 4}
     for name, data in cases.items():
         (tmp_path / name).write_bytes(data)
-        load = lfd.load if name.endswith(".pt") else lfd.load_file
+        load = lfd.load if name.endswith(".pt") else lfd.demos.load_file
         with pytest.raises(LfdError) as info:
             load(str(tmp_path / name))
         assert len(str(info.value).splitlines()) == 1
@@ -130,7 +130,7 @@ def test_fuzz_found_nothing_silly_in_plain_cases(tmp_path: Path) -> None:
         z.writestr("t.npy", b"\x93NUMPY garbage")
     (tmp_path / "z.npz").write_bytes(buf.getvalue())
     with pytest.raises(LfdError, match="z.npz: cannot read"):
-        lfd.load_file(tmp_path / "z.npz")
+        lfd.demos.load_file(tmp_path / "z.npz")
 
 
 # ---------------------------------------------------------------- the lfd command
@@ -262,7 +262,7 @@ def test_warnings_are_one_line(work: Path, monkeypatch: pytest.MonkeyPatch,
     import lfd.commands.eval
 
     def warn(args) -> int:  # type: ignore[no-untyped-def]
-        warnings.warn("something odd\nsecond line", RuntimeWarning)
+        warnings.warn("something odd\nsecond line", RuntimeWarning, stacklevel=2)
         return 0
 
     monkeypatch.setattr(lfd.commands.eval, "run", warn)

@@ -6,8 +6,16 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from robots import BUILTIN_ROBOTS, IK_BACKENDS, DifferentialIK, Kinematics, RobotError, RobotModel, load_robot, \
-    solve_position_ik
+from robots import (
+    BUILTIN_ROBOTS,
+    IK_BACKENDS,
+    DifferentialIK,
+    Kinematics,
+    RobotError,
+    RobotModel,
+    load_robot,
+    solve_position_ik,
+)
 
 DT = 0.002
 MARGIN = 0.02  # default limit_margin of both backends

@@ -8,10 +8,21 @@ import torch
 from scipy.spatial.distance import cdist
 
 from lfd.demos import DemoSet
+from lfd.evaluation import converged_fraction, evaluate, reproduce
 from lfd.field import VelocityField
-from lfd.metrics import (PER_DEMO_METRICS, chamfer_dtwd, converged_fraction, convergence_rate,
-                         cosine_error, dtw, evaluate, final_goal_distance, frechet, reproduce, resample, rmse,
-                         swept_area, velocity_rmse)
+from lfd.metrics import (
+    PER_DEMO_METRICS,
+    chamfer_dtwd,
+    convergence_rate,
+    cosine_error,
+    dtw,
+    final_goal_distance,
+    frechet,
+    resample,
+    rmse,
+    swept_area,
+    velocity_rmse,
+)
 from lfd.normalization import Normalization
 
 

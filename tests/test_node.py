@@ -13,8 +13,18 @@ import torch
 
 import lfd
 from lfd.demos import DemoSet
-from lfd.learners.node import (ACTIVATIONS, NodeConfig, NodeField, NodeLearner, NodeMLP, SegmentDynamics,
-                               Segments, _ScaledMLP, stratified_sample, uniform_grid)
+from lfd.learners.node import (
+    ACTIVATIONS,
+    NodeConfig,
+    NodeField,
+    NodeLearner,
+    NodeMLP,
+    SegmentDynamics,
+    Segments,
+    _ScaledMLP,
+    stratified_sample,
+    uniform_grid,
+)
 from lfd.normalization import Normalization
 
 # A short training: 300 iterations on the default spiral, 100 samples a demo, segments 2 -> 10.

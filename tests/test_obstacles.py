@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import linear_field
 
 import lfd
 from lfd.errors import ConfigError
 from lfd.goal import follow_goal_path, load_goal_path, parse_goal_shift, shift_goal
 from lfd.obstacles import AvoidingField, Box, Capsule, Obstacle, Sphere, avoid, parse_obstacle
-from conftest import linear_field
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

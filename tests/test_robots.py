@@ -148,8 +148,8 @@ def test_panda_tool_frame_fingers_and_limits(robots: dict[str, RobotModel]) -> N
     hand = robot.mj_model.body("panda_hand").id
     tcp = data.xpos[hand] + 0.1034 * data.xmat[hand].reshape(3, 3)[:, 2]
     np.testing.assert_allclose(data.site_xpos[robot.mj_model.site(robot.mj_ee_site).id], tcp, atol=1e-12)
-    left = robot.mj_model.body("panda_leftfinger").id  # locked fully open, as in Pinocchio's reduced model
-    np.testing.assert_allclose(robot.mj_model.body_pos[left], [0.0, 0.04, 0.0584], atol=1e-15)
+    left = robot.mj_model.body("panda_leftfinger").id  # locked closed, as in Pinocchio's reduced model
+    np.testing.assert_allclose(robot.mj_model.body_pos[left], [0.0, 0.0, 0.0584], atol=1e-15)
 
 
 def test_planar_arm_moves_in_a_horizontal_plane(robots: dict[str, RobotModel]) -> None:
@@ -311,3 +311,89 @@ def test_continuous_joint_is_refused(tmp_path: Path) -> None:
     path.write_text(urdf.replace('<mesh filename="package://tri_description/meshes/base.stl"/>', '<box size="1 1 1"/>'))
     with pytest.raises(RobotError, match=r"joint 'yaw' of .* is a JointModelRUBZ: arm joints must be 1-DoF"):
         load_robot(str(path), ee_frame="tool")
+
+
+# ---------------------------------------------------------------- visual meshes (robots.visual)
+def test_panda_draws_its_converted_visual_meshes_and_collides_with_its_collision_meshes(
+        robots: dict[str, RobotModel]) -> None:
+    from robots.visual import COLLISION_GROUP, VISUAL_GROUP
+
+    model = robots["panda"].mj_model
+    visual = [g for g in range(model.ngeom) if model.geom_group[g] == VISUAL_GROUP]
+    arm = [g for g in range(model.ngeom) if model.geom_bodyid[g] > 0]
+    assert len(visual) >= 10                                            # every link, several colours each
+    assert all(model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0 for g in visual)
+    collision = [g for g in arm if g not in visual]
+    assert collision and all(model.geom_group[g] == COLLISION_GROUP and model.geom_contype[g] for g in collision)
+    links = {model.body(model.geom_bodyid[g]).name for g in visual}
+    assert {f"panda_link{i}" for i in range(8)} | {"panda_hand"} <= links
+    colours = {tuple(np.round(model.mat_rgba[model.geom_matid[g]], 2)) for g in visual}
+    assert len(colours) >= 3                                            # white, dark grey, ... kept
+    lo, hi = [], []
+    for g in visual:                                                    # metres, like the collision meshes
+        if model.geom_dataid[g] >= 0:
+            m = model.geom_dataid[g]
+            v = model.mesh_vert[model.mesh_vertadr[m]:model.mesh_vertadr[m] + model.mesh_vertnum[m]]
+            lo.append(v.min(0))
+            hi.append(v.max(0))
+    assert 0.05 < float(np.max(np.array(hi) - np.array(lo))) < 0.5
+
+
+def test_visuals_change_no_dynamics_and_can_be_turned_off(robots: dict[str, RobotModel]) -> None:
+    from robots.visual import VISUAL_GROUP
+
+    plain = load_robot("panda", visuals=False)
+    model = robots["panda"].mj_model
+    for field in ("body_mass", "body_inertia", "body_ipos", "body_pos"):
+        np.testing.assert_array_equal(getattr(model, field), getattr(plain.mj_model, field))
+    m = plain.mj_model
+    assert not any(m.geom_group[g] == VISUAL_GROUP for g in range(m.ngeom))
+    link_colours = {tuple(m.geom_rgba[g]) for g in range(m.ngeom) if m.geom_bodyid[g] > 0}
+    assert len(link_colours) >= 5                                       # a colour per link
+
+
+def test_conversion_is_cached_atomically_in_the_user_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from robots import loader, visual
+
+    monkeypatch.setenv("LFD_ROBOTS_CACHE", str(tmp_path / "cache"))
+    dae = loader._example_robot_data() / "robots" / "panda_description" / "meshes" / "visual" / "finger.dae"
+    parts = visual.convert_mesh(dae)
+    files = list((tmp_path / "cache").iterdir())
+    assert len(files) == 1 and files[0].suffix == ".npz" and not any(f.name.startswith(".") for f in files)
+    assert len(parts) == 2 and all(p[0][:5] != b"solid" for p in parts)  # binary STL per colour
+    assert visual.convert_mesh(dae) == parts                            # read back from the cache
+    (tmp_path / "bad.dae").write_text("<not collada")
+    with pytest.raises(ValueError, match="unreadable mesh"):
+        visual.convert_mesh(tmp_path / "bad.dae")
+
+
+def test_urdf_with_unreadable_visual_falls_back_to_coloured_collision(tmp_path: Path) -> None:
+    package = tmp_path / "tri_description"
+    (package / "meshes").mkdir(parents=True)
+    (package / "urdf").mkdir()
+    _write_stl_box(package / "meshes" / "base.stl", 0.05)
+    (package / "meshes" / "broken.dae").write_text("<nope")
+    text = _URDF.replace('<link name="l3">', '<link name="l3"><visual><geometry><box size="0.2 0.03 0.03"/>'
+                         '</geometry><material name="red"><color rgba="1 0 0 1"/></material></visual>')
+    text = text.replace('</inertial><collision><geometry><mesh filename="package://tri_description/meshes/base.stl"/>',
+                        '</inertial><visual><geometry><mesh filename="package://tri_description/meshes/broken.dae"/>'
+                        '</geometry></visual><collision><geometry>'
+                        '<mesh filename="package://tri_description/meshes/base.stl"/>')
+    path = package / "urdf" / "tri.urdf"
+    path.write_text(text)
+    with pytest.warns(RuntimeWarning, match="1 link.*collision meshes.*base"):
+        robot = load_robot(str(path), ee_frame="tool")
+    m = robot.mj_model
+    l3 = [g for g in range(m.ngeom) if m.geom_bodyid[g] == m.body("l3").id]
+    assert len(l3) == 1 and m.geom_group[l3[0]] == 2 and m.geom_contype[l3[0]] == 0
+    np.testing.assert_allclose(m.mat_rgba[m.geom_matid[l3[0]]], [1, 0, 0, 1])
+    base = [g for g in range(m.ngeom) if m.geom_bodyid[g] == m.body("base").id]
+    assert base and all(m.geom_group[g] == 0 and m.geom_contype[g] for g in base)   # drawn, colliding
+
+
+def test_table_option_adds_a_table_under_the_robot() -> None:
+    robot = load_robot("planar", table=True)
+    m = robot.mj_model
+    top = m.geom("table_top").id
+    assert m.geom_pos[top][2] + m.geom_size[top][2] == pytest.approx(0.0)
+    assert m.geom_pos[m.geom("floor").id][2] < -0.5

@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 import torch
 
-import sim  # noqa: F401  (sets MUJOCO_GL first)
 import lfd
+import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import load_robot
 from sim import experiment as sim_experiment
+from sim.errors import PlacementError, RenderError, SimulationError
 from sim.perturbations import compile_schedule
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,11 +73,11 @@ def test_placement_round_trip_and_default_size(panda, demos):
 
 def test_placement_rejects_unreachable(panda, planar, demos):
     far = sim.Placement.auto(panda, demos.x, size_m=2.5)
-    with pytest.raises(sim.PlacementError, match="unreachable"):
+    with pytest.raises(PlacementError, match="unreachable"):
         far.check_reachable(panda, demos.x)
-    with pytest.raises(sim.PlacementError, match="moves in a plane"):
+    with pytest.raises(PlacementError, match="moves in a plane"):
         sim.Placement.auto(planar, lfd.spiral3d(n_demos=1, n_samples=20).x)
-    with pytest.raises(sim.PlacementError, match="unreachable"):
+    with pytest.raises(PlacementError, match="unreachable"):
         sim.Experiment(planar, demos, size_m=3.0)
 
 
@@ -150,12 +151,12 @@ def test_environment_reset_and_step(panda, demos):
 # ---------------------------------------------------------------- divergence
 def test_divergence_raises_simulation_error(planar, demos):
     exp = sim.Experiment(planar, demos, settle_s=0.0)
-    with pytest.raises(sim.SimulationError, match="diverged"):
+    with pytest.raises(SimulationError, match="diverged"):
         exp.rollout(sink_field(demos), (sim.JointVelocityNoise(std_rad_s=1e12, seed=0),))
     nan_field = sink_field(demos)
     with torch.no_grad():
         nan_field.module.A.fill_(float("nan"))
-    with pytest.raises(sim.SimulationError, match="diverged"):
+    with pytest.raises(SimulationError, match="diverged"):
         exp.rollout(nan_field)
 
 
@@ -168,7 +169,7 @@ def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypa
     sink_field(demos).save(model)
     monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
     diverging = lambda name, seed=0: (sim.JointVelocityNoise(std_rad_s=1e12),)  # noqa: E731
-    monkeypatch.setattr(sim, "scenario", diverging)
+    monkeypatch.setattr(demo_arm, "scenario", diverging)
     monkeypatch.setattr(sim_experiment, "scenario", diverging)
     out = tmp_path / "out"
     rc = demo_arm.main(["--robot", "planar", "--model", str(model), "--perturb", "none", "--out", str(out), "--quiet"])
@@ -229,7 +230,7 @@ def test_render_error_is_one_clear_line(monkeypatch):
     from sim.render import open_gl_context
 
     monkeypatch.setenv("MUJOCO_GL", "wgl")
-    with pytest.raises(sim.RenderError, match="MUJOCO_GL=wgl cannot render offscreen"):
+    with pytest.raises(RenderError, match="MUJOCO_GL=wgl cannot render offscreen"):
         open_gl_context(16, 16)
 
 

@@ -12,8 +12,9 @@ import lfd
 from lfd.cli import main
 from lfd.demos import save_file
 from lfd.errors import ConfigError
+from lfd.evaluation import reproduce
 from lfd.learners.tracking import TrackingField, check_tracking_contraction
-from lfd.metrics import reproduce, rmse
+from lfd.metrics import rmse
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -159,7 +160,7 @@ def test_cli_train_eval_plot(tmp_path: Path) -> None:
 def test_arm_loop_carries_the_phase(fields: dict[str, TrackingField]) -> None:
     """sim's PhaseLoop waits while the measured tool is held, and integrate_phase (the arm's
     reference) agrees with the field's own rollout."""
-    from sim.experiment import integrate_phase
+    from lfd.integrate import rk4_phase as integrate_phase
     from sim.rollout import PhaseLoop
 
     f = fields["K=3"]

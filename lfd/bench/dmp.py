@@ -16,6 +16,12 @@ so the benchmark uses it as follows (docs/benchmark.md):
   is instead evaluated at the demo's points).
 - Perturbed starts: tau = the mean training duration, run for the benchmark horizon.
 - No streamlines; the single-step time is one ``DMP.step`` (an rk4 step, in compiled code).
+
+References
+----------
+Ijspeert, A. J., Nakanishi, J., Hoffmann, H., Pastor, P., Schaal, S. (2013). Dynamical movement
+primitives: learning attractor models for motor behaviors. Neural Computation 25(2), 328-373.
+doi:10.1162/NECO_a_00393
 """
 
 from __future__ import annotations

@@ -19,16 +19,19 @@ cosine_error(v_i, xd_i), in mm, mm², mm/s. Per shape: the spurious-attractor fr
 from __future__ import annotations
 
 import time
-from typing import Any, Protocol as TypingProtocol
+from typing import TYPE_CHECKING, Any, cast
+from typing import Protocol as TypingProtocol
 
 import numpy as np
 import torch
-from torchdiffeq import odeint
 
-from lfd import metrics
+from lfd import integrate, metrics
 from lfd.bench import protocol as proto
 from lfd.demos import DemoSet, lasa
 from lfd.field import VelocityField
+
+if TYPE_CHECKING:
+    from lfd.learners.tracking import TrackingField
 
 METRICS: tuple[str, ...] = ("rmse", "dtw", "dtw_per_sample", "chamfer_dtwd", "chamfer_dtwd_std", "frechet",
                             "swept_area", "velocity_rmse", "cosine_error")
@@ -83,7 +86,9 @@ class FieldModel:
         self.integrators: dict[str, str] = {}
 
     def _solve(self, x0: np.ndarray, t: np.ndarray, what: str, fallback_step: float) -> np.ndarray:
-        """x(t) from x0, shape (B, d), at times t, shape (n,) (t[0] = 0): shape (B, n, d)."""
+        """x(t) from x0, shape (B, d), at times t, shape (n,) (t[0] = 0): shape (B, n, d).
+
+        ``lfd.integrate.solve`` in normalised units: dopri5, then rk4 at ``fallback_step``."""
         norm, module = self.field.norm, self.field.module
         xn0 = torch.tensor(norm.to_norm(x0))
         tt = torch.tensor(np.asarray(t, dtype=np.float64))
@@ -93,11 +98,11 @@ class FieldModel:
 
         with torch.no_grad(), np.errstate(all="ignore"):
             try:
-                yn = odeint(f, xn0, tt, method="dopri5", rtol=self.TOL, atol=self.TOL,
-                            options={"max_num_steps": self.MAX_STEPS})
+                yn = integrate.solve(f, xn0, tt, **integrate.odeint_kwargs(
+                    "dopri5", rtol=self.TOL, atol=self.TOL, max_steps=self.MAX_STEPS))
                 self.integrators[what] = "dopri5"
             except (AssertionError, RuntimeError):
-                yn = odeint(f, xn0, tt, method="rk4", options={"step_size": fallback_step})
+                yn = integrate.solve(f, xn0, tt, **integrate.odeint_kwargs("rk4", step=fallback_step))
                 self.integrators[what] = f"rk4 (step {fallback_step:.3g} s, dopri5 failed)"
             return norm.from_norm(yn.numpy()).transpose(1, 0, 2)
 
@@ -157,7 +162,8 @@ class PhaseFieldModel(FieldModel):
         step = fallback_step if what == "reproduce" else float(t[1] - t[0])
         self.integrators[what] = f"rk4 on (x, s), step {step:.3g} s"
         with np.errstate(all="ignore"):
-            return self.field.rollout_with_phase(x0, t, method="rk4", step=step)[0]
+            field = cast("TrackingField", self.field)   # built only for fields with rollout_with_phase
+            return field.rollout_with_phase(x0, t, method="rk4", step=step)[0]
 
 
 def score(model: Model, demos: DemoSet, dtw_step: int) -> tuple[dict[str, list[float]], np.ndarray]:

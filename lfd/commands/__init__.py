@@ -60,7 +60,8 @@ def source_constant(module: str, name: str) -> Any:
         for node in tree.body:
             target = node.target if isinstance(node, ast.AnnAssign) else (
                 node.targets[0] if isinstance(node, ast.Assign) and len(node.targets) == 1 else None)
-            if isinstance(target, ast.Name) and target.id == name and node.value is not None:
+            if (isinstance(target, ast.Name) and target.id == name
+                    and isinstance(node, (ast.AnnAssign, ast.Assign)) and node.value is not None):
                 try:
                     return ast.literal_eval(node.value)
                 except ValueError:
@@ -72,7 +73,7 @@ def check_output(path: str, what: str, inputs: dict[str, str | None] | None = No
     """Before any long work: refuse an output ``path`` that names one of ``inputs`` ({what: path})
     or cannot be written (``OutputError``, exit 2)."""
     from lfd.errors import OutputError
-    from lfd.modelfile import check_writable, same_file
+    from lfd.io import check_writable, same_file
 
     for name, other in (inputs or {}).items():
         if other and same_file(path, other):

@@ -38,7 +38,14 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "repeat with a LEARNER: prefix to give one learner fewer, e.g. node:Angle,Sine")
     q.add_argument("--seeds", type=int, default=1, metavar="N", help="train with seeds 0..N-1 (default 1)")
     q.add_argument("--workers", type=int, default=os.cpu_count() or 1, metavar="N",
-                   help="worker processes (default: the CPU count; 1 runs in this process)")
+                   help="worker processes (default: the CPU count; 1 runs in this process); with "
+                        "--executor ray: the CPUs of the local Ray instance")
+    q.add_argument("--executor", default="local", choices=("local", "ray"),
+                   help="local: a process pool (default); ray: Ray tasks, on a local Ray instance or, "
+                        "with --address / RAY_ADDRESS, on an existing cluster (pip install 'lfd-arm[ray]')")
+    q.add_argument("--address", metavar="HOST:PORT",
+                   help="with --executor ray: join the Ray cluster there (default: $RAY_ADDRESS; unset: "
+                        "start Ray locally)")
     q.add_argument("--train-demos", type=int, default=7, metavar="K",
                    help="train on the first K demos, test on the rest (default 7)")
     q.add_argument("--quick", action="store_true",
@@ -118,11 +125,14 @@ def parse_options(items: list[str], learners: list[str]) -> dict[str, dict[str, 
 def run(args: argparse.Namespace) -> int:
     from lfd.bench import protocol as proto
     from lfd.bench.report import summarize, write_report
-    from lfd.bench.runner import Cell, load_arrays, resolve_config, run_cells, write_json
+    from lfd.bench.runner import Cell, check_executor, load_arrays, resolve_config, run_cells, write_json
     from lfd.errors import ConfigError
 
     if args.seeds < 1 or args.workers < 1:
         raise ConfigError("--seeds and --workers must be >= 1")
+    if args.workers > 4096:
+        raise ConfigError(f"--workers {args.workers}: at most 4096")
+    address = check_executor(args.executor, args.address)
     from lfd.commands import check_output
 
     check_output(args.json, "--json", {"--notes file": args.notes})  # before hours of benchmark
@@ -146,10 +156,12 @@ def run(args: argparse.Namespace) -> int:
     load_start = _load()
     t0 = time.perf_counter()
     result = run_cells(cells, cache, workers=min(args.workers, max(len(cells), 1)), fresh=args.fresh,
-                       progress=sys.stderr.isatty())  # a bar only on a terminal
+                       progress=sys.stderr.isatty(),  # a bar only on a terminal
+                       executor=args.executor, address=address)
     wall = time.perf_counter() - t0
     run_info = {
-        "command": _command(args), "seeds": seeds, "workers": args.workers, "cpus": os.cpu_count(),
+        "command": _command(args), "seeds": seeds, "workers": args.workers, "executor": args.executor,
+        "cpus": os.cpu_count(),
         "wall_s": wall, "computed": len(result.computed), "cached": len(result.cached),
         "load_start": load_start, "load_end": _load(), "cache": str(cache),
     }
@@ -176,6 +188,8 @@ def _load() -> str:
 def _command(args: argparse.Namespace) -> str:
     parts = ["lfd bench lasa", f"--learner {args.learner}", *(f"--shapes {s}" for s in args.shapes),
              f"--seeds {args.seeds}", f"--workers {args.workers}", f"--train-demos {args.train_demos}"]
+    parts += [f"--executor {args.executor}"] if args.executor != "local" else []
+    parts += [f"--address {args.address}"] if args.address else []
     parts += ["--quick"] if args.quick else []
     parts += [f"--option {o}" for o in args.option]
     parts += [f"--json {args.json}", f"--report {args.report}"]

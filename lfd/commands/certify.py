@@ -9,8 +9,6 @@ other model (a NODE) in the identity metric with --rate or 0.05/s. Prints the ve
 from __future__ import annotations
 
 import argparse
-import json
-import math
 from typing import Any
 
 EXIT_NOT_CERTIFIED = 1
@@ -41,14 +39,16 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                               description=__doc__.splitlines()[0])
     p.add_argument("model", help="model file written by 'lfd train'")
     p.add_argument("--box", type=parse_box, metavar="XMIN,XMAX,YMIN,YMAX[,ZMIN,ZMAX]",
-                   help="box to check, user units; write --box=-1,1,-1,1 when it starts with a minus (default: the demos' box grown by 50%%)")
+                   help="box to check, user units; write --box=-1,1,-1,1 when it starts with a minus "
+                        "(default: the demos' box grown by 50%%)")
     p.add_argument("--demos", metavar="SPEC", help="take the box from these demos (grown by 50%%)")
     p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
                    help=f"at least N grid points, at most {MAX_SAMPLES} (default {DEFAULT_SAMPLES})")
     p.add_argument("--rate", type=float, metavar="LAMBDA",
                    help=f"rate to check, 1/s (default: the model's; {IDENTITY_RATE} for a model without a metric)")
     p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE, metavar="TOL",
-                   help=f"relative round-off slack: certified if worst <= -2 rate + TOL max(1, 2 rate) (default {DEFAULT_TOLERANCE:g})")
+                   help="relative round-off slack: certified if worst <= -2 rate + TOL max(1, 2 rate) "
+                        f"(default {DEFAULT_TOLERANCE:g})")
     p.add_argument("--json", metavar="PATH", help="write the certificate to this JSON file")
     return p
 
@@ -62,8 +62,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         check_output(args.json, "--json", {"model file": args.model, "demo file": args.demos})
     from lfd.certify import BOX_GROWTH, certify
+    from lfd.io import write_json
     from lfd.learners import load
-    from lfd.modelfile import atomic_write
 
     if args.box is not None:
         field = load(args.model, allow_nonfinite=True)
@@ -80,8 +80,6 @@ def run(args: argparse.Namespace) -> int:
     print(cert.summary())
     if args.json:
         report = {"model": str(args.model), **cert.to_dict()}
-        report = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in report.items()}
-        text = json.dumps(report, indent=2, allow_nan=False) + "\n"
-        atomic_write(args.json, lambda f: f.write(text.encode()))
+        write_json(args.json, report)
         print(f"wrote {args.json}")
     return 0 if cert.certified else EXIT_NOT_CERTIFIED

@@ -8,8 +8,6 @@ atomically: {"model", "learner", "demos", "dim", "n_demos", "dtw_step", "metrics
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import sys
 from typing import Any
 
@@ -34,8 +32,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from lfd.commands import check_output, model_and_demos
     from lfd.errors import ConfigError, DemoError
-    from lfd.metrics import dtw_step_for, evaluate
-    from lfd.modelfile import atomic_write
+    from lfd.evaluation import evaluate
+    from lfd.io import write_json
+    from lfd.metrics import dtw_step_for
 
     if args.dtw_step < 1:
         raise ConfigError(f"--dtw-step must be >= 1, got {args.dtw_step}")
@@ -59,10 +58,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         report = {"model": str(args.model), "learner": field.learner, "demos": demos.name,
                   "dim": demos.dim, "n_demos": demos.n_demos, "dtw_step": dtw_step,
-                  "metrics": names, "per_demo": [_finite(r) for r in result["per_demo"]],
-                  "mean": _finite(result["mean"])}
-        text = json.dumps(report, indent=2, allow_nan=False) + "\n"
-        atomic_write(args.json, lambda f: f.write(text.encode()))
+                  "metrics": names, "per_demo": result["per_demo"],
+                  "mean": result["mean"]}
+        write_json(args.json, report)
         print(f"wrote {args.json}")
     return 0
 
@@ -76,7 +74,3 @@ def format_table(names: list[str], rows: list[dict[str, float]], mean: dict[str,
 
     head = "demo".ljust(6) + "".join(n.rjust(w) for n, w in zip(names, widths))
     return "\n".join([head, *(line(str(i), r) for i, r in enumerate(rows)), line("mean", mean)])
-
-
-def _finite(row: dict[str, float]) -> dict[str, float | None]:
-    return {k: (v if math.isfinite(v) else None) for k, v in row.items()}

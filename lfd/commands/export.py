@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import argparse
 import io
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 if TYPE_CHECKING:  # imported when the command runs, so that ``lfd --help`` stays fast
     import numpy as np
@@ -94,6 +94,8 @@ def user_unit_module(field: VelocityField) -> torch.nn.Module:
     class UserUnitField(torch.nn.Module):
         """The learner's module with the normalisation of ``lfd.normalization`` folded in."""
 
+        goal: torch.Tensor   # a buffer (register_buffer below)
+
         def __init__(self, module: torch.nn.Module, goal: np.ndarray, scale: float) -> None:
             super().__init__()
             self.module = module
@@ -137,7 +139,7 @@ def export_torchscript(field: VelocityField, path: str) -> float:
     import torch
 
     from lfd.errors import ModelError
-    from lfd.modelfile import atomic_write
+    from lfd.io import atomic_write
 
     module = user_unit_module(field)
     x = check_points(field)
@@ -165,7 +167,7 @@ def export_onnx(field: VelocityField, path: str) -> float:
     import torch
 
     from lfd.errors import ConfigError, ModelError
-    from lfd.modelfile import atomic_write
+    from lfd.io import atomic_write
 
     try:
         import onnx  # noqa: F401
@@ -190,8 +192,10 @@ def export_onnx(field: VelocityField, path: str) -> float:
                          "use --format torchscript or npz-grid") from None
     finally:
         quiet.setLevel(level)
+    assert program is not None   # dynamo=True always returns an ONNXProgram
     data = program.model_proto.SerializeToString()
-    values = ReferenceEvaluator(program.model_proto).run(None, {"x": x})[0]
+    # run() is annotated dict | list; without intermediate=True it returns the list of outputs
+    values = cast(list[Any], ReferenceEvaluator(program.model_proto).run(None, {"x": x}))[0]
     err = _deviation(field, x, values, "ONNX")
     atomic_write(path, lambda f: f.write(data))
     return err
@@ -222,7 +226,7 @@ def export_grid(field: VelocityField, path: str, n: int | None = None, lo: np.nd
     import numpy as np
 
     from lfd.errors import ConfigError, ModelError
-    from lfd.modelfile import atomic_write
+    from lfd.io import atomic_write
 
     d = field.dim
     n = GRID_DEFAULT.get(d, 21) if n is None else n
@@ -275,7 +279,7 @@ class GridField:
         self.dim = d
 
     @classmethod
-    def load(cls, path: str) -> "GridField":
+    def load(cls, path: str) -> GridField:
         import numpy as np
 
         from lfd.errors import ModelError

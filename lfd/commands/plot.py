@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 FORMATS = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 MAX_DPI = 1000  # the figure is about 12 x 5 inches: 1000 dpi is already 60 megapixels
@@ -35,7 +36,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from lfd.commands import check_output, model_and_demos
     from lfd.errors import ConfigError
-    from lfd.modelfile import atomic_write
+    from lfd.io import atomic_write
 
     out = Path(args.out)
     if out.suffix.lower() not in FORMATS:
@@ -51,9 +52,11 @@ def run(args: argparse.Namespace) -> int:
     path = moving_goal.load_goal_path(args.goal_path) if args.goal_path else None
     from lfd.plotting import draw_obstacles, field_figure
 
+    field: Any   # a VelocityField, then maybe wrapped (moving goal, obstacles) with the same interface
     field, demos = model_and_demos(args.model, args.demos)
     if shift is not None:
-        field = moving_goal.shift_goal(field, *shift)
+        t0, dx = shift
+        field = moving_goal.shift_goal(field, t0, cast(Sequence[float], dx))   # shift_goal takes arrays too
     if path is not None:
         field = moving_goal.follow_goal_path(field, *path)
     if obstacles:

@@ -1,6 +1,9 @@
 """Contracting velocity fields by construction, with analytic bounds on all of R^d.
 
-A field dx/dt = f(x) contracts with rate lambda > 0 in a metric M(x), a I <= M(x) <= b I, when
+The learned f is the model f_L of the paper's system identification, Eq. (9), fitted to the demos
+(the residual f_true - f_L is not modelled). A field dx/dt = f(x) (the paper's Eq. (15)), whose
+virtual displacements obey d(dx)/dt = J_f dx (its Eq. (16)), contracts with rate lambda > 0 in a
+metric M(x), a I <= M(x) <= b I, when
 
     Eq. (C1): J_f' M + M J_f + dM/dt <= -2 lambda M   for all x,   dM/dt = sum_k (dM/dx_k) f_k,
 
@@ -28,7 +31,9 @@ and in the metric M(x) = J_phi(x)' J_phi(x)
 
 because sym(A) = -lambda I - P <= -lambda I. The metric bounds are a = s_lo^2, b = s_hi^2
 (Eq. (F4)), so the overshoot constant is sqrt(b/a) = s_hi / s_lo <= sqrt(KAPPA), the user's
-``max_condition``. The trajectory from x0 has the closed form
+``max_condition``. (The paper's Eq. (17) writes the rate of the squared length dx' M dx as
+lambda_max, i.e. 2 lambda here; its Eq. (18) omits the constant sqrt(b/a), exact for M = I only.)
+The trajectory from x0, the paper's forward ODESolve, Eq. (5), has the closed form
 
     Eq. (C4): x(t) = phi^-1(y* + exp(A t) (phi(x0) - y*)).
 
@@ -66,7 +71,7 @@ References
 Lohmiller, W., Slotine, J.-J. E. (1998). On contraction analysis for non-linear systems.
 Automatica 34(6), 683-696. doi:10.1016/S0005-1098(98)00019-3
 Rana, M. A., Li, A., Fox, D., Boots, B., Ramos, F., Ratliff, N. (2020). Euclideanizing flows:
-diffeomorphic reduction for learning stable dynamical systems. L4DC. arXiv:2005.13143
+diffeomorphic reduction for learning stable dynamical systems. L4DC, PMLR 120. arXiv:2005.13143
 Behrmann, J., Grathwohl, W., Chen, R. T. Q., Duvenaud, D., Jacobsen, J.-H. (2019). Invertible
 residual networks. ICML. arXiv:1811.00995
 """
@@ -75,8 +80,9 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -87,6 +93,7 @@ from lfd.demos import DemoSet
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
 from lfd.learners.flows import BoundedFlow, bounded_flow_numpy
+from lfd.threads import torch_threads
 
 DEFAULT_RATE = 0.5             # 1/s: below the ~1/s decay of 3-5 s demos, so it leaves room to fit them
 DEFAULT_MAX_CONDITION = 100.0  # b/a <= 100: the overshoot constant sqrt(b/a) is at most 10
@@ -211,6 +218,7 @@ class ContractionModule(nn.Module):
         """f(x) of Eq. (C3), shape (B, d), with y = phi(x), shape (B, d), y* = phi(0), shape (1, d),
         and J_phi(x), shape (B, d, d)."""
         y, jac = self.flow.forward_with_jacobian(torch.cat([x, x.new_zeros(1, self.dim)]))
+        assert jac is not None
         y, y_star, jac = y[:-1], y[-1:], jac[:-1]
         v = (y - y_star) @ self.latent_matrix().T              # A (phi(x) - y*)
         return torch.linalg.solve(jac, v.unsqueeze(-1)).squeeze(-1), y, y_star, jac
@@ -218,6 +226,7 @@ class ContractionModule(nn.Module):
     def metric(self, x: torch.Tensor) -> torch.Tensor:
         """M_n(x) = J_phi(x)' J_phi(x), shape (B, d, d), for x : tensor, shape (B, d)."""
         _, jac = self.flow.forward_with_jacobian(x)
+        assert jac is not None
         return jac.transpose(-1, -2) @ jac
 
     def latent_trajectory(self, y0: torch.Tensor, y_star: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
@@ -318,10 +327,23 @@ class ContractionField(VelocityField):
             m = self.module.metric(xn).numpy()
         return m.reshape(*x.shape, self.dim) / self.norm.scale ** 2
 
-    def exact_rollout(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Eq. (C4), no ODE solver: x0 : array, shape (B, d); t : array, shape (T,), t[0] the start.
+    def closed_form_rollout(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """The flow in closed form, Eq. (C4): the one rollout that needs no ODE solver.
 
-        Returns shape (B, T, d) in user units.
+        Every other rollout goes through ``lfd.integrate`` (``rollout``, the paper's Eq. (5));
+        this one solves Eq. (5) exactly for this field, by the latent linear system.
+
+        Parameters
+        ----------
+        x0 : array, shape (B, d)
+            Starts, user units.
+        t : array, shape (T,)
+            Times, s; t[0] is the start.
+
+        Returns
+        -------
+        array, shape (B, T, d)
+            x(t), user units.
         """
         x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
         tt = torch.tensor(np.broadcast_to(np.asarray(t, dtype=np.float64) - t[0], (len(x0), len(t))).copy())
@@ -383,45 +405,23 @@ class ContractionLearner(Learner):
         if config.rate > lam_max:
             warnings.warn(
                 f"rate {config.rate:g}/s is not feasible for these demos within max_condition "
-                f"{config.max_condition:g} (sqrt = {math.sqrt(config.max_condition):.3g}): the largest feasible rate is "
+                f"{config.max_condition:g} (sqrt = {math.sqrt(config.max_condition):.3g}): "
+                "the largest feasible rate is "
                 + (f"{lam_max:.3g}/s" if lam_max > 0 else "none (a demo moves away from the goal by more than "
                    "sqrt(max_condition)); raise max_condition")
                 + "; the fit will be poor", RateFeasibilityWarning, stacklevel=3)
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
+        with torch_threads(1):
             history = cls._fit(module, demos, config, progress)
-        finally:
-            torch.set_num_threads(threads)
         history["feasible_rate"] = lam_max if math.isfinite(lam_max) else None
         return history
 
     @classmethod
     def _fit(cls, module: ContractionModule, demos: DemoSet, config: ContractionConfig,
              progress: bool) -> dict[str, Any]:
-        dtype = next(module.parameters()).dtype
-
-        def tensor(a: np.ndarray) -> torch.Tensor:
-            return torch.tensor(a, dtype=dtype)  # a copy: torch-aligned memory, so LAPACK takes one path in every process
-
-        d, n0 = demos.dim, demos.n_demos
-        # velocity matching: a fixed, seeded subsample of ``batch`` demo points
-        x_all, v_all = tensor(demos.x.reshape(-1, d)), tensor(demos.xd.reshape(-1, d))
-        pick = torch.randperm(len(x_all))[:config.batch] if len(x_all) > config.batch else slice(None)
-        x, v = x_all[pick], v_all[pick]
-        v_scale = float((v_all * v_all).sum(1).mean())
-        # trajectory matching: traj_points samples per demo, then the goal (the origin) at rest
-        k_idx = np.unique(np.linspace(0, demos.n_samples - 1, config.traj_points).round().astype(int))
-        t_rel = demos.t[:, k_idx] - demos.t[:, :1]
-        tk = tensor(np.concatenate([t_rel, t_rel[:, -1:] * (1.0 + np.asarray(REST_TIMES))], axis=1))
-        xk = tensor(np.concatenate([demos.x[:, k_idx], np.zeros((n0, len(REST_TIMES), d))], axis=1))
-        nk = xk.shape[1]
-        # one pass of phi and J_phi serves both terms: rows [x | demo starts | trajectory targets]
-        nv = len(x)
-        x_in = torch.cat([x, tensor(demos.x[:, 0]), xk.reshape(-1, d)])
-
+        """Full-batch L-BFGS on Eq. (C5); the module ends at its best evaluation."""
+        data = _FitData.of(demos, config, next(module.parameters()).dtype)
         module.train()
-        module.init_latent_from_data(x_all, v_all)
+        module.init_latent_from_data(data.x_all, data.v_all)
         opt = torch.optim.LBFGS(module.parameters(), lr=1.0, max_iter=max(config.iterations, 1),
                                 max_eval=config.iterations, history_size=50, line_search_fn="strong_wolfe",
                                 tolerance_grad=1e-10, tolerance_change=1e-12)
@@ -432,14 +432,7 @@ class ContractionLearner(Learner):
 
         def closure() -> torch.Tensor:
             opt.zero_grad()
-            f, y, y_star, _ = module.velocity_and_latent(x_in)
-            err_v = f[:nv] - v
-            loss = (err_v * err_v).sum(1).mean() / v_scale
-            if config.traj_weight > 0:
-                target = y[nv + n0:].reshape(n0, nk, d)                      # phi(x_demo(t_k))
-                err_y = module.latent_trajectory(y[nv:nv + n0], y_star, tk) - target
-                y_scale = ((target - y_star) ** 2).sum(-1).mean()         # scale-free: phi cannot shrink the error away
-                loss = loss + config.traj_weight * (err_y * err_y).sum(-1).mean() / y_scale
+            loss = data.loss(module, config.traj_weight)
             value = float(loss.detach())
             if not math.isfinite(value):
                 raise _NonFinite
@@ -468,3 +461,59 @@ class ContractionLearner(Learner):
         module.eval()
         return {"loss": losses, "best_loss": best["loss"] if losses else None, "iterations": len(losses),
                 "interrupted": interrupted, "stopped_nonfinite": nonfinite}
+
+
+@dataclass(frozen=True)
+class _FitData:
+    """The tensors of Eq. (C5), built once per fit (normalised units).
+
+    x_all, v_all : (K, d), every demo point and its velocity (for the initial A);
+    x_in : (nv + N + N nk, d), the rows [velocity points | demo starts | trajectory targets], so
+    one pass of phi and J_phi serves both terms; v : (nv, d), the velocities of the first nv rows;
+    tk : (N, nk), the times of the trajectory targets; v_scale : mean |xd|^2.
+    """
+
+    x_all: torch.Tensor
+    v_all: torch.Tensor
+    x_in: torch.Tensor
+    v: torch.Tensor
+    tk: torch.Tensor
+    v_scale: float
+    nv: int
+    n0: int
+    nk: int
+
+    @classmethod
+    def of(cls, demos: DemoSet, config: ContractionConfig, dtype: torch.dtype) -> _FitData:
+        """Velocity points: a fixed, seeded subsample of ``batch`` demo points (draws from torch's
+        global generator); trajectory targets: ``traj_points`` samples per demo, then the goal (the
+        origin) at rest at T (1 + r), r in ``REST_TIMES``."""
+
+        def tensor(a: np.ndarray) -> torch.Tensor:
+            # a copy: torch-aligned memory, so LAPACK takes one path in every process
+            return torch.tensor(a, dtype=dtype)
+
+        d, n0 = demos.dim, demos.n_demos
+        x_all, v_all = tensor(demos.x.reshape(-1, d)), tensor(demos.xd.reshape(-1, d))
+        pick = torch.randperm(len(x_all))[:config.batch] if len(x_all) > config.batch else slice(None)
+        x, v = x_all[pick], v_all[pick]
+        v_scale = float((v_all * v_all).sum(1).mean())
+        k_idx = np.unique(np.linspace(0, demos.n_samples - 1, config.traj_points).round().astype(int))
+        t_rel = demos.t[:, k_idx] - demos.t[:, :1]
+        tk = tensor(np.concatenate([t_rel, t_rel[:, -1:] * (1.0 + np.asarray(REST_TIMES))], axis=1))
+        xk = tensor(np.concatenate([demos.x[:, k_idx], np.zeros((n0, len(REST_TIMES), d))], axis=1))
+        x_in = torch.cat([x, tensor(demos.x[:, 0]), xk.reshape(-1, d)])
+        return cls(x_all, v_all, x_in, v, tk, v_scale, len(x), n0, xk.shape[1])
+
+    def loss(self, module: ContractionModule, traj_weight: float) -> torch.Tensor:
+        """Eq. (C5): velocity matching plus ``traj_weight`` times latent trajectory matching."""
+        nv, n0 = self.nv, self.n0
+        f, y, y_star, _ = module.velocity_and_latent(self.x_in)
+        err_v = f[:nv] - self.v
+        loss = (err_v * err_v).sum(1).mean() / self.v_scale
+        if traj_weight > 0:
+            target = y[nv + n0:].reshape(n0, self.nk, -1)                   # phi(x_demo(t_k))
+            err_y = module.latent_trajectory(y[nv:nv + n0], y_star, self.tk) - target
+            y_scale = ((target - y_star) ** 2).sum(-1).mean()         # scale-free: phi cannot shrink the error away
+            loss = loss + traj_weight * (err_y * err_y).sum(-1).mean() / y_scale
+        return loss

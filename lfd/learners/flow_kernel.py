@@ -10,7 +10,8 @@ machine; ``cache=True`` keeps the machine code beside this file). numba is impor
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

@@ -36,7 +36,8 @@ alpha = cap tanh(S / cap) / S, so the layer's bound is below its cap for every p
 
     Eq. (F4): s_lo = prod_k sigma_min,k <= sigma(J_phi(x)) <= prod_k sigma_max,k = s_hi   for all x,
 
-and b/a = (s_hi / s_lo)^2 < KAPPA by construction.
+and b/a = (s_hi / s_lo)^2 < KAPPA by construction. With M = J_phi' J_phi these are the metric
+bounds a = s_lo^2, b = s_hi^2 of the paper's contraction bound, Eq. (18) (``lfd.learners.contraction``).
 
 **Curvature** (for the field's Lipschitz bound, ``lfd.learners.contraction``): each layer bounds
 |D J_k(x)| by a function of the distance of its input from its centre that decays like a Gaussian
@@ -45,12 +46,15 @@ and b/a = (s_hi / s_lo)^2 < KAPPA by construction.
 References
 ----------
 Behrmann, Grathwohl, Chen, Duvenaud, Jacobsen (2019). Invertible residual networks. ICML. arXiv:1811.00995
+Rana, M. A., Li, A., Fox, D., Boots, B., Ramos, F., Ratliff, N. (2020). Euclideanizing flows:
+diffeomorphic reduction for learning stable dynamical systems. L4DC, PMLR 120. arXiv:2005.13143
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import torch
@@ -164,8 +168,9 @@ class BoundedFlow(nn.Module):
         big_b = 2 * _E_HALF * h1 + _E_HALF * h0 / self.window
         c = c_cap * torch.tanh(big_b / c_cap)
         alpha = c / big_b
-        out = {"theta": theta, "rho": RHO_MIN + (RHO_MAX - RHO_MIN) * torch.sigmoid(self.rho_logit), "m": m, "w2": w2 * alpha[:, None, None],
-               "c": c, "h0": alpha * h0, "h1": alpha * h1, "h2": TANH2_MAX * alpha * n2 * n1 * n1}
+        out = {"theta": theta, "rho": RHO_MIN + (RHO_MAX - RHO_MIN) * torch.sigmoid(self.rho_logit), "m": m,
+               "w2": w2 * alpha[:, None, None], "c": c, "h0": alpha * h0, "h1": alpha * h1,
+               "h2": TANH2_MAX * alpha * n2 * n1 * n1}
         if self.axis is not None:
             out["axis"] = self.axis / torch.sqrt((self.axis ** 2).sum(1, keepdim=True) + _EPS)
         return out
@@ -184,8 +189,8 @@ class BoundedFlow(nn.Module):
             c = float(p["c"][k])
             out.append(LayerBound("residual", 1.0 - c, 1.0 + c, np.zeros(self.dim),
                                   float(p["h0"][k] + p["h1"][k] * self.window * _E_HALF),
-                                  {"window": np.float64(self.window), "h0": p["h0"][k], "h1": p["h1"][k],
-                                   "h2": p["h2"][k]}))
+                                  {"window": cast(np.ndarray, np.float64(self.window)), "h0": p["h0"][k],
+                                   "h1": p["h1"][k], "h2": p["h2"][k]}))
         return out
 
     def singular_value_bounds(self) -> tuple[float, float]:
@@ -313,7 +318,7 @@ def bounded_flow_numpy(params: list[dict[str, np.ndarray | float]], x: np.ndarra
             rot = np.array([[cs, -sn], [sn, cs]])
             kz = np.array([-z[1], z[0]])
         else:
-            kk = p["K"]
+            kk = cast(np.ndarray, p["K"])
             rot = eye + sn * kk + (1 - cs) * (kk @ kk)
             kz = kk @ z
         jac = (rot @ (eye + q * np.outer(kz, z))) @ jac

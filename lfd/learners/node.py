@@ -1,7 +1,9 @@
 """Neural ODE learner: an MLP velocity field fitted by integrating it through the demos.
 
-The field is dx_n/dt = f_theta(x_n), an MLP with a linear output layer (so velocities take
-either sign), optionally shifted so the goal is an equilibrium:
+The field is dx_n/dt = f_theta(x_n), the paper's NODE, Eq. (12): an MLP as its Eqs. (7) and (14)
+but with a linear output layer (a ReLU or tanh output would make every velocity component
+non-negative or bounded by 1; a field that reaches a goal needs both signs), any number of hidden
+layers, optionally shifted so the goal is an equilibrium:
 
     f_theta(x) = g_theta(x) - g_theta(0)                                   (goal_equilibrium)
 
@@ -10,7 +12,11 @@ integrate ``seg`` samples with torchdiffeq and compare with the demo,
 
     L(theta) = 1 / (B (S - 1) d) sum_b sum_{j=1}^{S-1} || phi_theta(t_{k+j} - t_k; x_k) - x_{k+j} ||^2,
 
-where phi_theta is the flow of f_theta. The segment length S grows from ``seg_start`` to ``seg``
+where phi_theta is the flow of f_theta (the paper's forward ODESolve, Eq. (5), stepping as its
+Eq. (3)). This is the paper's loss, Eqs. (4) and (13), by multiple shooting: each segment starts
+from a demo sample rather than one integration running from x(t_0) through the whole demo, whose
+errors compound. Gradients backpropagate through the solver's steps, or, with ``adjoint``, by the
+paper's adjoint ODE, Eq. (6). The segment length S grows from ``seg_start`` to ``seg``
 over the first ``curriculum`` fraction of the iterations (short segments first: cheap and
 well conditioned; long segments last: they penalise drift). Each batch draws one segment from
 each of ``batch`` equal strata of the segments (ordered by demo and time), so fast and slow parts
@@ -21,15 +27,22 @@ autograd node with a hand-written backward (``_ScaledMLP``, checked by gradcheck
 Each demo i is integrated on its own sample grid t_k = t_0 + k h_i: the solver runs in
 sample units tau = (t - t_k) / h_i on dx/dtau = h_i f_theta(x), so demos of different
 durations share one batch. Demos on non-uniform grids are resampled (linearly) onto
-uniform ones.
+uniform ones. The solvers and their options are those of ``lfd.integrate.SOLVERS``; see
+docs/equations.md for the map from the paper's equations to this code.
+
+References
+----------
+Chen, R. T. Q., Rubanova, Y., Bettencourt, J., Duvenaud, D. (2018). Neural ordinary differential
+equations. NeurIPS. arXiv:1806.07366
 """
 
 from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar, cast
 
 import numpy as np
 import torch
@@ -38,17 +51,16 @@ from torch import nn
 from torchdiffeq import odeint, odeint_adjoint
 from tqdm.auto import tqdm
 
+from lfd import integrate
 from lfd.demos import DemoSet
 from lfd.errors import ConfigError
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
+from lfd.threads import torch_threads
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "tanh": nn.Tanh, "relu": nn.ReLU, "softplus": nn.Softplus, "elu": nn.ELU, "silu": nn.SiLU,
 }
-FIXED_SOLVERS: tuple[str, ...] = ("euler", "midpoint", "heun2", "heun3", "rk4", "explicit_adams",
-                                  "implicit_adams")
-ADAPTIVE_SOLVERS: tuple[str, ...] = ("dopri5", "dopri8", "bosh3", "fehlberg2", "adaptive_heun")
 DTYPES: dict[str, torch.dtype] = {"float32": torch.float32, "float64": torch.float64}
 # Training runs on one thread: with batches of a few hundred points the MLP is bound by
 # per-op overhead, and a second thread measured no faster (slower under load) on 2 cores.
@@ -99,9 +111,7 @@ class NodeConfig:
         self.hidden = tuple(int(w) for w in self.hidden)
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"unknown activation '{self.activation}'; known: {', '.join(ACTIVATIONS)}")
-        if self.solver not in FIXED_SOLVERS + ADAPTIVE_SOLVERS:
-            raise ValueError(f"unknown solver '{self.solver}'; known: "
-                             f"{', '.join(FIXED_SOLVERS + ADAPTIVE_SOLVERS)}")
+        integrate.check_method(self.solver)  # ValueError naming the solvers of lfd.integrate.SOLVERS
         if self.dtype not in DTYPES:
             raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got '{self.dtype}'")
         for name in ("lr", "lr_final", "rtol", "atol"):
@@ -138,7 +148,10 @@ def _is_real(value: Any) -> bool:
 
 
 class NodeMLP(nn.Module):
-    """f(x) = g(x) - g(0) (or g(x)), g an MLP with linear output; x : (B, d) -> (B, d)."""
+    """f(x) = g(x) - g(0) (or g(x)), g an MLP with linear output; x : (B, d) -> (B, d).
+
+    The paper's Eqs. (7) and (14) without the activation on the output layer (module docstring).
+    """
 
     def __init__(self, dim: int, hidden: tuple[int, ...], activation: str, goal_equilibrium: bool) -> None:
         super().__init__()
@@ -218,6 +231,8 @@ class _ScaledMLP(torch.autograd.Function):
 class SegmentDynamics(nn.Module):
     """dx/dtau = h f(x) in sample units tau; h : (B, 1), the sample step of each segment's demo.
 
+    Integrated over one sample, it is the paper's NODE step, Eq. (3).
+
     With ``fused`` the field is one ``_ScaledMLP`` node and the goal offset g(0) of a NodeMLP
     is computed once per ``begin`` (the parameters are fixed during one integration);
     odeint_adjoint needs the plain f(x) instead, since it differentiates each evaluation alone.
@@ -255,7 +270,7 @@ class Segments:
     h: torch.Tensor
 
     @classmethod
-    def of(cls, x: torch.Tensor, h: torch.Tensor, seg: int) -> "Segments":
+    def of(cls, x: torch.Tensor, h: torch.Tensor, seg: int) -> Segments:
         """x : (N, T, d) uniform-grid demos; h : (N,) their sample steps."""
         n, T, d = x.shape
         w = x.unfold(1, seg, 1)                       # (N, T - S + 1, d, S)
@@ -302,12 +317,52 @@ def stratified_sample(m: int, batch: int, gen: torch.Generator) -> torch.Tensor:
 
 
 def solver_options(config: NodeConfig) -> dict[str, Any]:
-    """Keyword arguments of odeint for the configured solver, in sample units tau."""
-    if config.solver in FIXED_SOLVERS:
-        # one step per sample needs no step_size: the solver then steps on the output grid itself
-        options = {"step_size": 1.0 / config.substeps} if config.substeps > 1 else None
-        return {"method": config.solver, "options": options}
-    return {"method": config.solver, "rtol": config.rtol, "atol": config.atol}
+    """Keyword arguments of odeint for the configured solver, in sample units tau.
+
+    From ``lfd.integrate.odeint_kwargs``: a fixed-step solver takes ``substeps`` steps per sample
+    (one step per sample needs no step_size: the solver then steps on the output grid itself);
+    an adaptive one takes ``rtol`` and ``atol`` (and ignores ``substeps``).
+    """
+    if integrate.check_method(config.solver).adaptive:
+        return integrate.odeint_kwargs(config.solver, rtol=config.rtol, atol=config.atol)
+    return integrate.odeint_kwargs(config.solver, step=1.0 / config.substeps if config.substeps > 1 else None)
+
+
+class _Shooting:
+    """The optimisation of ``fit_segments``: the segment dynamics, the solver, Adam and its schedule."""
+
+    def __init__(self, module: nn.Module, config: NodeConfig) -> None:
+        self.dynamics = SegmentDynamics(cast(NodeMLP, module), fused=not config.adjoint)
+        self.solve = odeint_adjoint if config.adjoint else odeint
+        self.kwargs = solver_options(config)
+        if config.adjoint:
+            self.kwargs["adjoint_params"] = tuple(module.parameters())
+        self.opt = torch.optim.Adam(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, T_max=config.iters,
+                                                                eta_min=config.lr_final)
+
+    def loss(self, w: torch.Tensor, hb: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        """The loss L of the module docstring (the paper's Eq. (4), by multiple shooting) on
+        windows w, shape (S, B, d), with sample steps hb, shape (B, 1), at tau, shape (S,)."""
+        self.dynamics.begin(hb)
+        pred = self.solve(self.dynamics, w[0], tau, **self.kwargs)
+        return torch.mean((pred[1:] - w[1:]) ** 2)
+
+    def step(self, loss: torch.Tensor) -> None:
+        """One Adam step on ``loss``, then one step of the cosine schedule."""
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt.step()
+        self.sched.step()
+
+
+def _batch(segments: Segments, config: NodeConfig, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """The windows (S, B, d) and steps (B, 1) of one iteration: stratified, or all segments."""
+    m = segments.windows.shape[1]
+    if 0 < config.batch < m:
+        idx = stratified_sample(m, config.batch, gen)
+        return segments.windows[:, idx], segments.h[idx]
+    return segments.windows, segments.h
 
 
 def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: NodeConfig,
@@ -323,37 +378,22 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
     dtype = DTYPES[config.dtype]
     module.to(dtype).train()
     x, h = x.to(dtype), h.to(dtype)
-    dynamics = SegmentDynamics(module, fused=not config.adjoint)
-    integrate = odeint_adjoint if config.adjoint else odeint
-    kwargs = solver_options(config)
-    if config.adjoint:
-        kwargs["adjoint_params"] = tuple(module.parameters())
-    opt = torch.optim.Adam(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=config.iters, eta_min=config.lr_final)
+    shooting = _Shooting(module, config)
     gen = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,)).item()))
 
     losses: list[float] = []
     best: tuple[float, int, dict[str, torch.Tensor]] | None = None
     interrupted = nonfinite = False
     segments: Segments | None = None
-    threads = torch.get_num_threads()
-    torch.set_num_threads(TRAIN_THREADS)
     try:
-        with tqdm(total=config.iters, desc=desc, disable=not progress, leave=False) as bar:
+        with torch_threads(TRAIN_THREADS), \
+                tqdm(total=config.iters, desc=desc, disable=not progress, leave=False) as bar:
             for k in range(config.iters):
                 seg = segment_length(config, k)
                 if segments is None or segments.windows.shape[0] != seg:
                     segments, best = Segments.of(x, h, seg), None
                     tau = torch.arange(seg, dtype=dtype)
-                m = segments.windows.shape[1]
-                if 0 < config.batch < m:
-                    idx = stratified_sample(m, config.batch, gen)
-                    w, hb = segments.windows[:, idx], segments.h[idx]
-                else:
-                    w, hb = segments.windows, segments.h
-                dynamics.begin(hb)
-                pred = integrate(dynamics, w[0], tau, **kwargs)
-                loss = torch.mean((pred[1:] - w[1:]) ** 2)
+                loss = shooting.loss(*_batch(segments, config, gen), tau)
                 value = float(loss.item())
                 if not math.isfinite(value):
                     nonfinite = True
@@ -364,17 +404,12 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
                 losses.append(value)
                 if best is None or value < best[0]:
                     best = (value, k, {n: p.detach().clone() for n, p in module.state_dict().items()})
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                opt.step()
-                sched.step()
+                shooting.step(loss)
                 bar.update(1)
                 if k % POSTFIX_EVERY == 0:
                     bar.set_postfix(loss=f"{value:.3g}", seg=seg, refresh=False)
     except KeyboardInterrupt:
         interrupted = True
-    finally:
-        torch.set_num_threads(threads)
     if best is not None:
         module.load_state_dict(best[2])
     module.eval()
@@ -432,7 +467,7 @@ class NodeField(VelocityField):
 
     def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
         """x_n (d,) -> f(x_n) (d,): z_i = sigma(W_i z_{i-1} + b_i), f = W_L z_{L-1} + b_L - g(0)."""
-        return _numpy_mlp(self._numpy_layers(), self.module.activation)
+        return _numpy_mlp(self._numpy_layers(), cast(NodeMLP, self.module).activation)
 
     def point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
         """x (d,) -> dx/dt (d,) in user units, a few us a call, on a snapshot of the weights.
@@ -445,7 +480,7 @@ class NodeField(VelocityField):
         (w1, b1), (wl, bl) = layers[0], layers[-1]
         layers[0] = (w1 / s, b1 - w1.dot(goal) / s)
         layers[-1] = (wl * s, bl * s)
-        return _numpy_mlp(layers, self.module.activation)
+        return _numpy_mlp(layers, cast(NodeMLP, self.module).activation)
 
 
 def _numpy_mlp(layers: list[tuple[np.ndarray, np.ndarray]],

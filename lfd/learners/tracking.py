@@ -9,14 +9,15 @@ coordinates; the reference is their mean,
 
 tabulated with its derivative at ``table`` phases (buffers of the torch module, so model files
 carry it) and cubic-Hermite interpolated between them (C1 in s). With ``condition_start`` the
-reference is conditioned on the start x0 as a ProMP is (Paraschos et al. 2013): with the demos' empirical cross-covariance
-C(s, 0) = cov_i(x_i(s), x_i(0)) and delta = x0 - r(0),
+reference is conditioned on the start x0 as a ProMP is (Paraschos et al. 2013): with the demos'
+empirical cross-covariance C(s, 0) = cov_i(x_i(s), x_i(0)) and delta = x0 - r(0),
 
     Eq. (T2): r(s | x0) = r(s) + G(s) delta,   G(s) = C(s, 0) (C(0, 0) + sigma^2 I)^-1,
 
 so a start like a demo's start follows that demo's shape (G(0) ~ I, G(1) = 0: the goal is kept).
 
-The state is (x, s), s(0) = 0 (plus the constant delta with ``condition_start``). The field is
+The state is (x, s), s(0) = 0 (plus the constant delta with ``condition_start``): the phase s
+stands in for the time argument of the paper's Eq. (10), so the field stays autonomous. The field is
 
     Eq. (T3): dx/dt = s_dot r'(s) + K (r(s) - x),
     Eq. (T4): ds/dt = h(|x - r(s)|) c(s) / T,   h(e) = 1 / (1 + (e / eps)^2),
@@ -42,23 +43,31 @@ one metric: through h, s_dot depends on x, so two starts may settle on the path 
 
 Units: x_n = (x - goal) / scale and time is not rescaled, so K is in 1/s of user time.
 
-References: Ijspeert, Nakanishi, Hoffmann, Pastor, Schaal (2013), Neural Computation 25(2):328-373,
-doi:10.1162/NECO_a_00393. Paraschos, Daniel, Peters, Neumann (2013), Probabilistic movement
-primitives, NeurIPS. Wang, Slotine (2005), Biological Cybernetics 92:38-53, doi:10.1007/s00422-004-0527-x.
+References
+----------
+Ijspeert, A. J., Nakanishi, J., Hoffmann, H., Pastor, P., Schaal, S. (2013). Dynamical movement
+primitives: learning attractor models for motor behaviors. Neural Computation 25(2), 328-373.
+doi:10.1162/NECO_a_00393
+Paraschos, A., Daniel, C., Peters, J., Neumann, G. (2013). Probabilistic movement primitives. NeurIPS.
+Wang, W., Slotine, J.-J. E. (2005). On partial contraction analysis for coupled nonlinear
+oscillators. Biological Cybernetics 92, 38-53. doi:10.1007/s00422-004-0527-x
+Lohmiller, W., Slotine, J.-J. E. (1998). On contraction analysis for non-linear systems.
+Automatica 34(6), 683-696. doi:10.1016/S0005-1098(98)00019-3
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar, cast
 
 import numpy as np
 import torch
 from scipy.interpolate import make_lsq_spline
 from torch import nn
-from torchdiffeq import odeint
 
+from lfd import integrate
 from lfd.demos import DemoSet
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
@@ -137,6 +146,13 @@ class TrackingModule(nn.Module):
     ref, dref : (M, d) r(s_j) and r'(s_j) at s_j = j / (M - 1); gain, dgain : (M, d, d) G(s_j) and
     G'(s_j) of Eq. (T2) (zero without ``condition_start``); duration : T, s (scalar).
     """
+
+    # the buffers registered in __init__ (nn.Module's __getattr__ is typed Tensor | Module)
+    ref: torch.Tensor
+    dref: torch.Tensor
+    gain: torch.Tensor
+    dgain: torch.Tensor
+    duration: torch.Tensor
 
     def __init__(self, dim: int, config: TrackingConfig) -> None:
         super().__init__()
@@ -258,12 +274,13 @@ class TrackingField(VelocityField):
 
     def reference(self, s: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         """r(s) (or r(s | x0)) in user units: s : array, shape (P,) -> shape (P, d)."""
-        s = torch.tensor(np.atleast_1d(np.asarray(s, dtype=np.float64)))
+        st = torch.tensor(np.atleast_1d(np.asarray(s, dtype=np.float64)))
         delta = None
         if x0 is not None and self.conditioned:
-            delta = torch.tensor(np.broadcast_to(self.start_offset(x0)[0], (len(s), self.dim)).copy())
+            off = cast(np.ndarray, self.start_offset(x0))
+            delta = torch.tensor(np.broadcast_to(off[0], (len(st), self.dim)).copy())
         with torch.no_grad():
-            return self.norm.from_norm(self.module.reference(s, delta)[0].numpy())
+            return self.norm.from_norm(self.module.reference(st, delta)[0].numpy())
 
     def velocity(self, x: np.ndarray, s: np.ndarray | float, x0: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -275,11 +292,11 @@ class TrackingField(VelocityField):
         sb = np.broadcast_to(np.asarray(s, dtype=np.float64), (len(xb),)).copy()
         delta = None
         if x0 is not None and self.conditioned:
-            delta = torch.tensor(np.broadcast_to(self.start_offset(x0)[0], xb.shape).copy())
+            delta = torch.tensor(np.broadcast_to(cast(np.ndarray, self.start_offset(x0))[0], xb.shape).copy())
         with torch.no_grad():
             v, sd = self.module.velocity(torch.tensor(self.norm.to_norm(xb)), torch.tensor(sb), delta)
-        v, sd = v.numpy() * self.norm.scale, sd.numpy()
-        return (v[0], float(sd[0])) if single else (v, sd)  # type: ignore[return-value]
+        va, sda = v.numpy() * self.norm.scale, sd.numpy()
+        return (va[0], float(sda[0])) if single else (va, sda)  # type: ignore[return-value]
 
     def phase_point_fn(self, x0: np.ndarray | None = None) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
         """A fast numpy evaluator (x (d,), s) -> (dx/dt (d,), ds/dt) in user units for control loops
@@ -288,7 +305,7 @@ class TrackingField(VelocityField):
         mod = self.module
         ref, dref = mod.ref.numpy().copy(), mod.dref.numpy().copy()
         if x0 is not None and self.conditioned:
-            delta = self.start_offset(x0)[0]
+            delta = cast(np.ndarray, self.start_offset(x0))[0]
             ref = ref + mod.gain.numpy() @ delta
             dref = dref + mod.dgain.numpy() @ delta
         goal, sc, k, eps2 = self.norm.goal.copy(), float(self.norm.scale), mod.rate, mod.eps ** 2
@@ -326,18 +343,15 @@ class TrackingField(VelocityField):
         single = x0.ndim == 1
         xb = np.atleast_2d(x0)
         t = np.asarray(t, dtype=np.float64)
-        options = None
-        if step is not None:
-            options = {"step_size": float(step), "interp": "cubic"}
-        elif method in ("rk4", "euler", "midpoint") and substeps > 1:
-            options = {"step_size": float(np.min(np.diff(t))) / substeps}
+        options = integrate.odeint_kwargs(method, step=step, substeps=substeps, t=t,
+                                          interp=None if step is None else "cubic").get("options")
         delta = self.start_offset(np.broadcast_to(xb if start is None else start, xb.shape))
         sb = torch.tensor(np.broadcast_to(np.asarray(s0, dtype=np.float64), (len(xb),)).copy())
         with torch.no_grad():
             xs, ss = self._rollout_torch(torch.tensor(xb), torch.tensor(t),
                                          None if delta is None else torch.tensor(delta), method, options, sb)
-        xs, ss = xs.numpy(), ss.numpy()
-        return (xs[0], ss[0]) if single else (xs, ss)
+        xa, sa = xs.numpy(), ss.numpy()
+        return (xa[0], sa[0]) if single else (xa, sa)
 
     def _rollout_torch(self, x0: torch.Tensor, t: torch.Tensor, delta: torch.Tensor | None, method: str,
                        options: dict[str, Any] | None, s0: torch.Tensor | None = None
@@ -351,7 +365,7 @@ class TrackingField(VelocityField):
             v, sd = self.module.velocity(y[:, :d], y[:, d], delta)
             return torch.cat([v, sd.unsqueeze(-1)], dim=1)
 
-        y = odeint(rhs, y0, t - t[0], method=method, options=options)     # (T, B, d + 1)
+        y = integrate.solve(rhs, y0, t - t[0], method, options)           # (T, B, d + 1)
         return self.norm.from_norm_torch(y[..., :d]).permute(1, 0, 2), y[..., d].permute(1, 0)
 
     def rollout_torch(self, x0: torch.Tensor, t: torch.Tensor, method: str = "rk4",

@@ -10,7 +10,6 @@ from scipy.linalg.lapack import dposv, dpotrf, dsyev
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
-
 _FAST_TOL = 1e-9  # margin of the fast limit test over rounding: a qdot this close to a limit takes the full test
 
 
@@ -64,6 +63,17 @@ class DlsBackend:
         self._unit_gain = gains.posture_gain == 1.0
         self._fast_dt, self._fast_half = 0.0, self._half
         self.limit_hits = 0
+
+    def fast_params(self, dt: float) -> dict[str, np.ndarray | float]:
+        """The constants of the fast path at step dt [s], for a compiled copy of it (``sim.controller``).
+
+        Returns ``q_home`` (n,), ``mid`` (n,), ``fast_half`` (n,) (the limit test |q - mid| <= fast_half),
+        ``posture_gain``, ``eps2`` (eps^2 of the Cholesky test) and ``fast_speed2`` (the speed test |qdot|^2 <=
+        fast_speed2). A compiled copy that finds either test failing, or J J^T - eps^2 I not positive definite, must
+        call ``solve`` instead (which then counts ``limit_hits``)."""
+        return {"q_home": self._q_home.copy(), "mid": self._mid.copy(), "fast_half": self._half - self._v_max * dt,
+                "posture_gain": float(self.gains.posture_gain), "eps2": float(self._eps2),
+                "fast_speed2": float(self._fast_speed2)}
 
     def _resolve(self, jac: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
         """z + J^T (J J^T + lambda^2 I)^-1 (v - J z) for J (m, k), v (m,), z (k,) -> (k,). If J J^T - eps^2 I is

@@ -1,0 +1,124 @@
+"""The robustness sweep of the arm (scripts/sweep_arm.py, issue 15): one JSON record per run,
+resume, summary and figures, the local process pool and Ray giving the same numbers.
+
+Small on purpose: the planar arm, two tiny learned fields (trained once into a temporary model
+cache), 2 push directions x 1 force + 2 start offsets per learner (8 runs). Ray is optional: its
+test is skipped when Ray is not installed (``pip install '.[ray]'``; the dev extra has it).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+SCRIPTS = str(Path(__file__).resolve().parents[1] / "scripts")
+if SCRIPTS not in sys.path:
+    sys.path.insert(0, SCRIPTS)
+
+import sweep_arm  # noqa: E402
+
+TIMINGS = {"run_s", "run_cpu_s", "control_step_us", "realtime_factor"}   # wall-clock numbers: differ run to run
+ARGS = ["--robots", "planar", "--directions", "2", "--forces", "20", "--offsets", "0.05", "--kinds", "push,offset",
+        "--option", "node.iters=30", "--option", "node.hidden=[16,16]", "--option", "contraction.iterations=10",
+        "--option", "contraction.layers=1", "--option", "contraction.hidden=8"]
+N_RUNS = 8
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    old = os.environ.get("LFD_CACHE_DIR")
+    os.environ["LFD_CACHE_DIR"] = str(tmp_path_factory.mktemp("models"))
+    yield os.environ["LFD_CACHE_DIR"]
+    if old is None:
+        os.environ.pop("LFD_CACHE_DIR", None)
+    else:
+        os.environ["LFD_CACHE_DIR"] = old
+
+
+@pytest.fixture(scope="module")
+def local(models: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sweep_local")
+    assert sweep_arm.main(["--out", str(out), "--workers", "2", *ARGS]) == 0
+    return out
+
+
+def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
+    if isinstance(obj, dict):
+        return {k: v for key, val in obj.items() if key not in TIMINGS
+                for k, v in _numbers(val, f"{prefix}/{key}").items()}
+    if isinstance(obj, list):
+        return {k: v for i, val in enumerate(obj) for k, v in _numbers(val, f"{prefix}/{i}").items()}
+    if isinstance(obj, bool) or obj is None:
+        return {prefix: float(bool(obj))} if isinstance(obj, bool) else {}
+    return {prefix: float(obj)} if isinstance(obj, (int, float)) else {}
+
+
+def _records(out: Path) -> dict[str, dict[str, Any]]:
+    return {p.name: json.loads(p.read_text()) for p in sorted((out / "runs").glob("*.json"))}
+
+
+def test_records_summary_and_figures(local: Path) -> None:
+    recs = _records(local)
+    assert len(recs) == N_RUNS
+    assert not list((local / "runs").glob("*.tmp*"))                       # atomic: no leftovers
+    for name, r in recs.items():
+        assert name == f"{r['name']}.json" and len(r["key"]) == 16
+        assert r["kind"] in ("push", "offset") and isinstance(r["success"], bool) and r["error"] is None
+        assert r["metrics"]["final_goal_error_m"] >= 0
+        if r["kind"] == "push":
+            assert "recovery_time_s" in r["metrics"] and r["metrics"]["max_deviation_m"] > 0
+    summary = json.loads((local / "summary.json").read_text())
+    assert summary["runs"] == N_RUNS and summary["run"]["computed"] == N_RUNS
+    assert set(summary["summary"]) == {f"planar/{lr}/{k}" for lr in ("node", "contraction") for k in ("push", "offset")}
+    for name in ("heatmap.png", "basin.png"):
+        assert (local / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_resume_recomputes_only_a_missing_run(local: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    recs = sorted((local / "runs").glob("*.json"))
+    gone = recs[3]
+    gone.unlink()
+    mtimes = {p.name: p.stat().st_mtime_ns for p in recs if p != gone}
+    assert sweep_arm.main(["--out", str(local), "--workers", "1", *ARGS]) == 0
+    assert "1 run(s) computed, 7 from" in capsys.readouterr().out
+    assert gone.is_file()
+    assert {p.name: p.stat().st_mtime_ns for p in recs if p != gone} == mtimes
+
+
+def test_ray_executor_gives_the_local_numbers(local: Path, tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    assert sweep_arm.main(["--out", str(tmp_path), "--executor", "ray", "--workers", "2", *ARGS]) == 0
+    a, b = _records(local), _records(tmp_path)
+    assert a.keys() == b.keys()
+    for name in a:
+        x, y = _numbers(a[name]), _numbers(b[name])
+        assert x.keys() == y.keys() and len(x) > 10
+        np.testing.assert_allclose([y[k] for k in x], [x[k] for k in x], rtol=1e-6, atol=1e-12, err_msg=name)
+    assert (tmp_path / "heatmap.png").is_file()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--executor", "dask"], "invalid choice"),
+    (["--executor", "ray", "--address", "no-port"], "HOST:PORT"),
+    (["--address", "10.0.0.1:6379"], "needs --executor ray"),
+    (["--executor", "ray", "--address", "127.0.0.1:1"], "no Ray cluster reachable"),
+    (["--forces", "-5"], "--forces"),
+    (["--workers", "0"], "--workers"),
+    (["--kinds", "spin"], "--kinds"),
+    (["--learners", "gp"], "--learners"),
+])
+def test_bad_input_is_one_line_exit_2(argv: list[str], message: str, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    try:
+        code = sweep_arm.main(["--out", str(tmp_path), *argv])
+    except SystemExit as e:              # argparse's own errors
+        code = e.code
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and message in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "runs").exists()

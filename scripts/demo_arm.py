@@ -151,6 +151,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--push-duration", type=float, default=0.2, metavar="S", help="duration in seconds")
     g.add_argument("--push-direction", type=vector3, metavar="X,Y,Z",
                    help="world direction (normalised; default: drawn from --seed)")
+    p.add_argument("--obstacle", action="append", default=[], metavar="SHAPE:NUMBERS",
+                   help="an obstacle in task units (repeatable): sphere:x,y[,z],r, box:x,y[,z],hx,hy[,hz] or "
+                        "capsule:x1,y1[,z1],x2,y2[,z2],r, optionally ';margin=M'. The fields avoid it "
+                        "(lfd.avoid), the scene holds it as a MuJoCo geom, and each run reports its "
+                        "robot-obstacle contacts and smallest clearance")
     p.add_argument("--control-hz", type=float, default=500.0, help="control rate in Hz (default 500)")
     p.add_argument("--iters", type=int, help="training iterations (default: the learner's)")
     p.add_argument("--quiet", action="store_true", help="print only the results table and errors "
@@ -388,8 +393,10 @@ def plan_outputs(args: argparse.Namespace, out: Path, json_path: Path, learners:
 
 def run(args: argparse.Namespace) -> int:
     import lfd
+    from lfd.obstacles import parse_obstacle
     from robots import load_robot
     from sim.modelcache import cached_field
+    from sim.obstacles import obstacle_contacts, with_obstacles
 
     progress = not args.quiet and sys.stderr.isatty()  # bars only on a terminal
     verbose = not args.quiet
@@ -410,6 +417,10 @@ def run(args: argparse.Namespace) -> int:
     planned = [args.learner or "node"] if n_runs == len(args.perturb) else ["node", "contraction"]
     plan = plan_outputs(args, out, json_path, planned, outputs, inputs)
     demos = lfd.load_demos(args.demos)
+    obstacles = [parse_obstacle(text, demos.dim) for text in args.obstacle]
+    for o in obstacles:
+        if float(o.gamma(demos.goal)) < 1.01:
+            raise lfd.ConfigError(f"the demos' goal lies inside or too close to the {o.describe()}")
     robot = load_robot(args.robot, args.ee_frame, actuation=args.actuation, table=args.table)
     if args.camera is not None:
         try:
@@ -420,6 +431,10 @@ def run(args: argparse.Namespace) -> int:
     exp = sim.Experiment(robot, demos, placement=placement(args, robot, demos), plane=args.plane,
                          size_m=args.size_m, control_hz=args.control_hz, ik=args.ik, actuation=args.actuation,
                          fps=args.fps)
+    if obstacles:  # the same placement, on a scene that also holds the obstacles
+        robot = with_obstacles(robot, obstacles, exp.placement)
+        exp = sim.Experiment(robot, demos, placement=exp.placement, control_hz=args.control_hz, ik=args.ik,
+                             actuation=args.actuation, fps=args.fps)
     pushes = "push" in args.perturb or args.side_by_side == "push" or args.grid
     if pushes and args.push_start + args.push_duration > exp.duration_s:
         raise lfd.ConfigError(f"the push ends at {args.push_start + args.push_duration:g} s, after the run "
@@ -455,6 +470,11 @@ def run(args: argparse.Namespace) -> int:
     for name, field in fields.items():
         if field.dim != demos.dim:
             raise lfd.ConfigError(f"the {name} model is {field.dim}-D but the demos {demos.name} are {demos.dim}-D")
+    if obstacles:
+        for name, field in fields.items():
+            if hasattr(field, "rollout_with_phase"):
+                raise lfd.ConfigError(f"--obstacle does not apply to the {name} learner yet (its phase state)")
+            fields[name] = lfd.avoid(field, obstacles)
     if main_learners != planned:  # --model named its own learner: the planned names follow it
         plan = plan_outputs(args, out, json_path, main_learners, Outputs(), inputs)
 
@@ -482,6 +502,11 @@ def run(args: argparse.Namespace) -> int:
         grid.append(exp.run(fields[main_learners[0]], "push", push_of(args, args.seed + i),
                             seed=args.seed + i, progress=progress))
     t_sim = time.perf_counter() - t_sim
+    if obstacles:
+        for r in {id(r): r for r in results + side + grid}.values():
+            report = obstacle_contacts(robot, r.rollout.q, r.rollout.t)
+            r.metrics.update(obstacle_contacts=report.contacts, obstacle_steps_in_contact=report.steps_in_contact,
+                             obstacle_min_clearance_m=report.min_clearance_m)
 
     try:
         _write_outputs(args, exp, results, side, grid, fields, models, plan, json_path, outputs, t_sim,
@@ -636,7 +661,8 @@ def _iters_option(learner: str, iters: int) -> dict[str, int]:
 def print_table(results: Sequence[sim.RunResult]) -> None:
     head = (f"{'learner':12s} {'scenario':9s} {'track mm':>9s} {'imit mm':>8s} {'dtw mm':>7s} {'goal mm':>8s} "
             f"{'maxdev mm':>9s} {'recov s':>8s} {'limits':>6s} {'step us':>8s} {'RTF':>5s}")
-    print(head)
+    contacts = any("obstacle_contacts" in r.metrics for r in results)
+    print(head + (f" {'contacts':>8s}" if contacts else ""))
     for r in results:
         m = r.metrics
         push = "max_deviation_m" in m
@@ -645,7 +671,8 @@ def print_table(results: Sequence[sim.RunResult]) -> None:
               f"{fmt(m['final_goal_error_m'], 1e3):>8s} "
               f"{fmt(m['max_deviation_m'], 1e3) if push else '-':>9s} "
               f"{fmt(m['recovery_time_s']) if push else '-':>8s} {m['joint_limit_violations']:>6d} "
-              f"{m['control_step_us']:>8.1f} {m['realtime_factor']:>5.1f}")
+              f"{m['control_step_us']:>8.1f} {m['realtime_factor']:>5.1f}"
+              + (f" {m.get('obstacle_contacts', '-'):>8}" if contacts else ""))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

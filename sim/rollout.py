@@ -152,12 +152,8 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
     K, dt = task.n_steps, task.control_dt
     shift = task.schedule.goal_offset_task
     shifted = bool(np.any(shift != 0))
-    ftimes = frame_times(K * dt, fps)
-    fsteps = np.minimum(np.round(ftimes / dt).astype(int), K)
-    Q = np.empty((K + 1, robot.n))
-    P = np.empty((K + 1, 3))
-    FQ = np.empty((len(fsteps), m.nq))
-    steps = np.empty(K)
+    rec = _Record.allocate(K, dt, robot.n, m.nq, fps)
+    fsteps, Q, P, FQ, steps = rec.frame_steps, rec.q, rec.ee, rec.frame_qpos, rec.step_s
     warn = d.warning.number
     bad = [int(w) for w in _DIVERGENCE]
     hits0 = getattr(ctl.ik, "limit_hits", 0)
@@ -223,20 +219,48 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
     P[K] = ctl.measure(q)
     if j < len(fsteps):
         FQ[j:] = d.qpos
-    if not (np.isfinite(Q).all() and np.isfinite(P).all()):
+    return _to_rollout(rec, task, field_fn, wall, cpu, int(getattr(ctl.ik, "limit_hits", 0) - hits0),
+                       None if hold is None else (h0 * dt, h1 * dt))
+
+
+@dataclass
+class _Record:
+    """What the loop writes: q (K+1, n), ee (K+1, 3), step_s (K,), and the full qpos frame_qpos
+    (F, nq) at the video frame times frame_t (F,), i.e. at control steps frame_steps (F,)."""
+
+    q: np.ndarray
+    ee: np.ndarray
+    step_s: np.ndarray
+    frame_t: np.ndarray
+    frame_steps: np.ndarray
+    frame_qpos: np.ndarray
+
+    @classmethod
+    def allocate(cls, K: int, dt: float, n: int, nq: int, fps: float) -> _Record:
+        ftimes = frame_times(K * dt, fps)
+        fsteps = np.minimum(np.round(ftimes / dt).astype(int), K)
+        return cls(np.empty((K + 1, n)), np.empty((K + 1, 3)), np.empty(K), ftimes, fsteps,
+                   np.empty((len(fsteps), nq)))
+
+
+def _to_rollout(rec: _Record, task: FieldTrackingTask, field_fn: Callable[[np.ndarray], np.ndarray], wall: float,
+                cpu: float, ik_limit_hits: int, hold_window: tuple[float, float] | None) -> Rollout:
+    """The Rollout of a finished loop (``SimulationError`` if its state went non-finite)."""
+    robot, K, dt = task.robot, task.n_steps, task.control_dt
+    if not (np.isfinite(rec.q).all() and np.isfinite(rec.ee).all()):
         raise SimulationError("simulation diverged: NaN in the joint state; no output written")
-    violations = int(np.count_nonzero(np.any((Q < robot.q_min) | (Q > robot.q_max), axis=1)))
+    violations = int(np.count_nonzero(np.any((rec.q < robot.q_min) | (rec.q > robot.q_max), axis=1)))
     s = task.schedule
     phase = None
     if isinstance(field_fn, PhaseLoop):
         phase = np.asarray(field_fn.trace + [field_fn.s], dtype=np.float64)
     return Rollout(
-        t=np.arange(K + 1) * dt, ee=P, q=Q, frame_t=ftimes, frame_qpos=FQ, step_time_s=steps,
-        wall_s=wall, start_task=task.start_task.copy(), goal_task=task.goal_task.copy(),
+        t=np.arange(K + 1) * dt, ee=rec.ee, q=rec.q, frame_t=rec.frame_t, frame_qpos=rec.frame_qpos,
+        step_time_s=rec.step_s, wall_s=wall, start_task=task.start_task.copy(), goal_task=task.goal_task.copy(),
         goal_world=task.goal_world.copy(), push_window_s=s.push_window_s,
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,
-        ik_limit_hits=int(getattr(ctl.ik, "limit_hits", 0) - hits0), joint_limit_violations=violations,
-        phase=phase, hold_window_s=None if hold is None else (h0 * dt, h1 * dt), cpu_s=cpu)
+        ik_limit_hits=ik_limit_hits, joint_limit_violations=violations,
+        phase=phase, hold_window_s=hold_window, cpu_s=cpu)
 
 
 def _divergence_message(d: mujoco.MjData, k: int, dt: float, bad: list[int]) -> str:

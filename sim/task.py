@@ -318,6 +318,54 @@ class FieldTrackingTask(control.Task):
         self.step_index = k + 1
 
 
+def _demo_defaults(robot: RobotModel, demos: str | DemoSet, demo_index: int, placement: Placement | None,
+                   start: np.ndarray | None, goal: np.ndarray | None, field_gives_goal: bool,
+                   duration_s: float | None, settle_s: float, rotation_ref: np.ndarray | None
+                   ) -> tuple[Placement, np.ndarray, np.ndarray | None, float, np.ndarray | None]:
+    """``make_environment``'s defaults from the demos: placement (checked reachable), start (demo
+    ``demo_index``'s first sample), goal (the demos' goal unless given or a field gives it),
+    duration (the demo's plus ``settle_s``) and the tool rotation to hold."""
+    from lfd.demos import load_demos
+
+    demo_set = load_demos(demos) if isinstance(demos, str) else demos
+    if not 0 <= demo_index < demo_set.n_demos:
+        raise SimError(f"demo index {demo_index} out of range: {demo_set.name} has {demo_set.n_demos} demos")
+    if rotation_ref is None and not robot.planar:
+        kin = Kinematics(robot)
+        kin.update(robot.q_home)
+        rotation_ref = kin.ee_rotation().copy()
+    if placement is None:
+        placement = Placement.auto(robot, demo_set.x)
+        placement.check_reachable(robot, demo_set.x, rotation=rotation_ref)
+    if start is None:
+        start = demo_set.x[demo_index, 0]
+    if goal is None and not field_gives_goal:
+        goal = demo_set.goal
+    if duration_s is None:
+        duration_s = float(demo_set.t[demo_index, -1] - demo_set.t[demo_index, 0]) + settle_s
+    return placement, start, goal, duration_s, rotation_ref
+
+
+def _control_dt(control_hz: float, timestep: float) -> float:
+    """The control period, s: an integer number of physics steps (else ``SimError``)."""
+    if not control_hz > 0:
+        raise SimError(f"control rate must be positive, got {control_hz}")
+    n_sub = (1.0 / control_hz) / timestep
+    if n_sub < 1 - 1e-9 or abs(n_sub - round(n_sub)) > 1e-6:
+        raise SimError(f"control rate {control_hz:g} Hz must divide the physics rate {1 / timestep:g} Hz")
+    return round(n_sub) * timestep
+
+
+def _require(placement: Placement | None, start: np.ndarray | None, goal: np.ndarray | None,
+             field: VelocityField | None) -> tuple[Placement, np.ndarray, np.ndarray]:
+    """The placement, start and goal ``make_environment`` needs, checked (``SimError`` if missing)."""
+    if placement is None or start is None or goal is None:
+        raise SimError("make_environment needs demos, or a placement, a start and a goal (or a learner_field)")
+    if field is not None and field.dim != placement.dim:
+        raise SimError(f"the field is {field.dim}-D but the placement is {placement.dim}-D")
+    return placement, start, goal
+
+
 def make_environment(robot: str | RobotModel, placement: Placement | None = None, start: np.ndarray | None = None,
                      goal: np.ndarray | None = None, *, demos: str | DemoSet | None = None,
                      learner_field: VelocityField | None = None, seed: int | None = None,
@@ -361,41 +409,16 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
     """
     if isinstance(robot, str):
         robot = load_robot(robot, actuation=actuation or "torque")
-    demo_set = None
     if demos is not None:
-        from lfd.demos import load_demos
-
-        demo_set = load_demos(demos) if isinstance(demos, str) else demos
-        if not 0 <= demo_index < demo_set.n_demos:
-            raise SimError(f"demo index {demo_index} out of range: {demo_set.name} has {demo_set.n_demos} demos")
-        if rotation_ref is None and not robot.planar:
-            kin = Kinematics(robot)
-            kin.update(robot.q_home)
-            rotation_ref = kin.ee_rotation().copy()
-        if placement is None:
-            placement = Placement.auto(robot, demo_set.x)
-            placement.check_reachable(robot, demo_set.x, rotation=rotation_ref)
-        if start is None:
-            start = demo_set.x[demo_index, 0]
-        if goal is None and learner_field is None:
-            goal = demo_set.goal
-        if duration_s is None:
-            duration_s = float(demo_set.t[demo_index, -1] - demo_set.t[demo_index, 0]) + settle_s
+        placement, start, goal, duration_s, rotation_ref = _demo_defaults(
+            robot, demos, demo_index, placement, start, goal, learner_field is not None, duration_s, settle_s,
+            rotation_ref)
     if goal is None and learner_field is not None:
         goal = learner_field.goal
-    if placement is None or start is None or goal is None:
-        raise SimError("make_environment needs demos, or a placement, a start and a goal (or a learner_field)")
-    if learner_field is not None and learner_field.dim != placement.dim:
-        raise SimError(f"the field is {learner_field.dim}-D but the placement is {placement.dim}-D")
+    placement, start, goal = _require(placement, start, goal, learner_field)
     duration_s = 6.0 if duration_s is None else duration_s
     physics = ArmPhysics.from_robot(robot) if physics is None else physics
-    timestep = physics.model.opt.timestep
-    if not control_hz > 0:
-        raise SimError(f"control rate must be positive, got {control_hz}")
-    n_sub = (1.0 / control_hz) / timestep
-    if n_sub < 1 - 1e-9 or abs(n_sub - round(n_sub)) > 1e-6:
-        raise SimError(f"control rate {control_hz:g} Hz must divide the physics rate {1 / timestep:g} Hz")
-    control_dt = round(n_sub) * timestep
+    control_dt = _control_dt(control_hz, physics.model.opt.timestep)
     task = FieldTrackingTask(robot, placement, start, goal, control_dt, duration_s, ik=ik,
                              actuation=actuation, perturbations=perturbations, rotation_ref=rotation_ref,
                              gains=gains, feedforward=feedforward, mj_model=physics.model.ptr,

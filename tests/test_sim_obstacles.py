@@ -76,3 +76,29 @@ def test_contacts_are_counted_where_the_tool_enters_and_clearance_elsewhere(plan
     assert clear.to_dict()["pairs"] == []
     with pytest.raises(ConfigError, match="shape"):
         obstacle_contacts(robot, q[:, :2])
+
+
+def test_demo_arm_obstacle_flag_reports_contacts_and_rejects_a_goal_inside(tmp_path, monkeypatch, capsys) -> None:
+    import json
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import demo_arm
+    from test_sim import sink_field
+
+    model = tmp_path / "sink.pt"
+    sink_field(lfd.spiral(n_demos=2, n_samples=60, duration=1.0)).save(model)
+    monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
+    out = tmp_path / "out"
+    base = ["--robot", "planar", "--model", str(model), "--perturb", "none", "--no-video", "--no-plots", "--quiet"]
+    rc = demo_arm.main([*base, "--out", str(out), "--obstacle", "sphere:3,3,0.1"])
+    assert rc == 0
+    metrics = json.loads((out / "metrics.json").read_text())["runs"][0]["metrics"]
+    assert metrics["obstacle_contacts"] == 0 and metrics["obstacle_min_clearance_m"] > 0.01
+    capsys.readouterr()
+    bad = tmp_path / "bad"
+    rc = demo_arm.main([*base, "--out", str(bad), "--obstacle", "sphere:0,0,0.3"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "goal lies inside" in err and len(err.splitlines()) == 1 and not bad.exists()

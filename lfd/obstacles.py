@@ -52,6 +52,7 @@ References
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from dataclasses import field as dc_field
@@ -83,7 +84,7 @@ def _vec(name: str, value: Any, dim: int | None = None) -> np.ndarray:
 
 
 @dataclass(eq=False, repr=False, kw_only=True)
-class Obstacle:
+class Obstacle(ABC):
     """Base of the obstacle shapes: a closed convex set in task space, static or moving.
 
     Parameters
@@ -143,26 +144,28 @@ class Obstacle:
     def dim(self) -> int:
         return int(self._center().size)
 
+    @abstractmethod
     def _center(self) -> np.ndarray:
-        raise NotImplementedError
+        """The shape's centre, shape (d,), at t = 0."""
 
     @property
+    @abstractmethod
     def size(self) -> float:
         """l: radius [units] of the bounding sphere of the grown shape, Gamma's length scale."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Signed distance to the grown shape, shape (B,), and outward normal, shape (B, d), of
         the points y, shape (B, d), in the frame at t = 0."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _point_sdf3(self) -> Callable[[float, float, float], tuple[float, float, float, float]]:
         """The same for one point as plain floats, (y0, y1, y2) -> (sdf, n0, n1, n2): the
         control-loop path, written out for 3-D (a 2-D shape is padded with z = 0)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def describe(self) -> str:
-        raise NotImplementedError
+        """One line naming the shape, its numbers and margin."""
 
     # ---- motion
     @property

@@ -55,3 +55,21 @@ def make_linear_field() -> Callable[..., VelocityField]:
 def spiral_field_2d() -> VelocityField:
     """f(x) = A (x - g), A = [[-1, 3], [-3, -1]], g = (0.5, -0.25): a stable focus, |x - g| ~ e^{-t}."""
     return linear_field(np.array([[-1.0, 3.0], [-3.0, -1.0]]), np.array([0.5, -0.25]), scale=2.0)
+
+
+class LinearSink(torch.nn.Module):
+    """f_n(x) = A x with A = [[-a, -w], [w, -a]] (-a on z in 3-D): a contracting spiral, no training."""
+
+    def __init__(self, dim: int, a: float = 1.5, w: float = 2.0) -> None:
+        super().__init__()
+        m = -a * np.eye(dim)
+        m[0, 1], m[1, 0] = -w, w
+        self.A = torch.nn.Parameter(torch.tensor(m))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x @ self.A.T
+
+
+def sink_field(demos: lfd.DemoSet, learner: str = "node", a: float = 1.5) -> VelocityField:
+    """A ``LinearSink`` field on ``demos``' normalisation, named ``learner`` (for the sim, env and video tests)."""
+    return VelocityField(LinearSink(demos.dim, a), Normalization.from_points(demos.x, demos.goal), learner, {})

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
-import torch
+from conftest import sink_field
 
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
@@ -28,19 +28,6 @@ from sim.rollout import execute
 TRACK_TOL_M = 1e-9        # tool path, MuJoCo vs Pinocchio inverse dynamics (measured ~1e-15 m)
 TORQUE_TOL = 1e-9         # N m, M a + c from MuJoCo vs RNEA (measured ~7e-15)
 CTRL_TOL = 1e-10          # fused kernel vs the Python path, actuator command
-
-
-class _Sink(torch.nn.Module):
-    """f_n(x) = A x, a contracting spiral (no training: fast)."""
-
-    def __init__(self, dim: int) -> None:
-        super().__init__()
-        m = -1.5 * np.eye(dim)
-        m[0, 1], m[1, 0] = -2.0, 2.0
-        self.A = torch.nn.Parameter(torch.tensor(m))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x @ self.A.T
 
 
 @functools.cache
@@ -55,7 +42,7 @@ def _robot(name: str, actuation: str = "torque") -> RobotModel:
 
 def _field() -> lfd.VelocityField:
     d = _demos()
-    return lfd.VelocityField(_Sink(d.dim), lfd.Normalization.from_points(d.x, d.goal), "node", {})
+    return sink_field(d)
 
 
 def _env(name: str, actuation: str = "torque", **kwargs):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
+from conftest import sink_field
 from dm_env import test_utils
 
 import lfd
@@ -31,23 +31,6 @@ FK_TOL_M = 1e-9                   # issue 12: observation vs forward kinematics 
 # (Panda), 5.6e-16 m (UR5); with the stale site of before issue 12: 0.45, 0.30, 0.30 mm. 1e-9 m leaves
 # six orders of magnitude for other CPUs and BLAS builds and is still 1e5 below the stale error.
 EXECUTE_TOL_M = 1e-9
-
-
-class LinearSink(torch.nn.Module):
-    """f_n(x) = A x with A = [[-a, -w], [w, -a]] (-a on z in 3-D): a contracting spiral."""
-
-    def __init__(self, dim: int, a: float = 1.5, w: float = 2.0) -> None:
-        super().__init__()
-        m = -a * np.eye(dim)
-        m[0, 1], m[1, 0] = -w, w
-        self.A = torch.nn.Parameter(torch.tensor(m))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x @ self.A.T
-
-
-def sink_field(demos: lfd.DemoSet) -> lfd.VelocityField:
-    return lfd.VelocityField(LinearSink(demos.dim), lfd.Normalization.from_points(demos.x, demos.goal), "node", {})
 
 
 @functools.cache

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import sink_field
 
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
@@ -22,24 +23,6 @@ from sim.errors import PlacementError, RenderError, SimulationError
 from sim.perturbations import compile_schedule
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-class LinearSink(torch.nn.Module):
-    """f_n(x) = A x with A = [[-a, -w], [w, -a]] (plus -a on z in 3-D): a contracting spiral."""
-
-    def __init__(self, dim: int, a: float = 1.5, w: float = 2.0) -> None:
-        super().__init__()
-        m = -a * np.eye(dim)
-        m[0, 1], m[1, 0] = -w, w
-        self.A = torch.nn.Parameter(torch.tensor(m))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x @ self.A.T
-
-
-def sink_field(demos: lfd.DemoSet) -> lfd.VelocityField:
-    norm = lfd.Normalization.from_points(demos.x, demos.goal)
-    return lfd.VelocityField(LinearSink(demos.dim), norm, "node", {})
 
 
 @pytest.fixture(scope="module")

@@ -86,7 +86,7 @@ def test_demo_arm_obstacle_flag_reports_contacts_and_rejects_a_goal_inside(tmp_p
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import demo_arm
-    from test_sim import sink_field
+    from conftest import sink_field
 
     model = tmp_path / "sink.pt"
     sink_field(lfd.spiral(n_demos=2, n_samples=60, duration=1.0)).save(model)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
+from conftest import sink_field
 
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
@@ -24,21 +24,6 @@ from sim.render import panel_grid
 
 ROOT = Path(__file__).resolve().parents[1]
 TOL = 45
-
-
-class Sink(torch.nn.Module):
-    """f_n(x) = A x, A = [[-a, -w], [w, -a]]: a contracting spiral."""
-
-    def __init__(self, a: float = 1.5, w: float = 2.0) -> None:
-        super().__init__()
-        self.A = torch.nn.Parameter(torch.tensor([[-a, -w], [w, -a]], dtype=torch.float64))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x @ self.A.T
-
-
-def sink(demos: lfd.DemoSet, learner: str = "node", a: float = 1.5) -> lfd.VelocityField:
-    return lfd.VelocityField(Sink(a), lfd.Normalization.from_points(demos.x, demos.goal), learner, {})
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +38,7 @@ def exp(demos):
 
 @pytest.fixture(scope="module")
 def pushed(exp, demos):
-    return exp.run(sink(demos), "push", perturbations=(sim.Push(start_s=0.3, duration_s=0.2, seed=1),))
+    return exp.run(sink_field(demos), "push", perturbations=(sim.Push(start_s=0.3, duration_s=0.2, seed=1),))
 
 
 def read_video(path: Path) -> tuple[dict, np.ndarray]:
@@ -113,7 +98,7 @@ def test_side_by_side_has_one_labelled_panel_per_run_and_is_not_slower(exp, demo
     import time
 
     push = (sim.Push(start_s=0.3, duration_s=0.2, seed=1),)
-    runs = [exp.run(sink(demos, name, a), "push", perturbations=push)
+    runs = [exp.run(sink_field(demos, name, a), "push", perturbations=push)
             for name, a in (("node", 0.5), ("contraction", 1.5), ("tracking", 4.0))]
     t0 = time.perf_counter()
     n = exp.render(runs, tmp_path / "sbs.mp4", 480, 160, fps=10.0)
@@ -179,7 +164,7 @@ def test_timeseries_and_plots(exp, pushed, tmp_path):
     assert z["t"][on].min() == pytest.approx(0.3, abs=0.003) and z["t"][on].max() < 0.5
     np.testing.assert_allclose(np.linalg.norm(z["push_force"][on], axis=1), 20.0)
     # the command is the field at the measured positions: it points back along the spiral
-    v0 = sink(exp.demos).point_fn()(exp.placement.to_task(z["ee"][0]))
+    v0 = sink_field(exp.demos).point_fn()(exp.placement.to_task(z["ee"][0]))
     np.testing.assert_allclose(z["command"][0], v0, rtol=1e-9)
     for fig, name in ((plots.run_figure(ts), "run.png"),
                       (plots.paths_figure(exp.demos.x, [("run", exp.placement.to_task(z["ee"]))], exp.demos.goal),
@@ -217,8 +202,8 @@ def demo_arm(monkeypatch):
 def test_demo_arm_writes_series_plots_and_video_matching_metrics(demo_arm, tmp_path, monkeypatch):
     short = lfd.spiral(n_demos=2, n_samples=60, duration=1.0)
     model = tmp_path / "sink.pt"
-    sink(short).save(model)
-    monkeypatch.setattr(lfd, "load", lambda path: sink(short))
+    sink_field(short).save(model)
+    monkeypatch.setattr(lfd, "load", lambda path: sink_field(short))
     monkeypatch.setattr(lfd, "load_demos", lambda spec: short)
     out = tmp_path / "out"
     rc = demo_arm.main(["--robot", "planar", "--model", str(model), "--perturb", "push", "--push-start", "0.5",

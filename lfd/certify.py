@@ -180,11 +180,13 @@ def grid(lo: np.ndarray, hi: np.ndarray, samples: int) -> np.ndarray:
 
 
 def default_box(field: VelocityField, grow: float = BOX_GROWTH) -> tuple[np.ndarray, np.ndarray] | None:
-    """The training demos' box from the model's history, grown by ``grow`` times its size, or None."""
-    h = field.history
-    if "demo_box" not in h:
+    """The training demos' box (``field.demo_box``) grown by ``grow`` times its size, or None.
+
+    Returns (lo, hi), arrays of shape (d,), user units; None for a field without a demo box.
+    """
+    if field.demo_box is None:
         return None
-    lo, hi = (np.asarray(v, dtype=np.float64) for v in h["demo_box"])
+    lo, hi = field.demo_box
     pad = (hi - lo) * grow / 2
     return lo - pad, hi + pad
 

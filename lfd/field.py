@@ -9,6 +9,7 @@ paper's Eq. (5) through ``lfd.integrate``.
 from __future__ import annotations
 
 import os
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Any
 
@@ -20,31 +21,52 @@ from lfd import integrate
 from lfd.normalization import Normalization
 
 
-def cached_point_fn(field: Any) -> Callable[..., np.ndarray]:
-    """``field.point_fn()``, built on first use and kept on the field (``field(x)`` on one point)."""
+def cached_single_point_evaluator(field: Any) -> Callable[..., np.ndarray]:
+    """``field.single_point_evaluator()``, built on first use and kept on the field.
+
+    ``field(x)`` on one point, x of shape (d,), dispatches to it.
+    """
     fn = field.__dict__.get("_point")
     if fn is None:
-        fn = field.__dict__["_point"] = field.point_fn()
+        fn = field.__dict__["_point"] = field.single_point_evaluator()
     return fn
 
 
 class VelocityField:
     """A learned autonomous velocity field x -> dx/dt.
 
-    module : torch.nn.Module mapping normalised x_n, shape (B, d), to dx_n/dt, shape (B, d)
-    norm : Normalization between user units and the unit box
-    learner : registry name of the learner that made it (``node``, ``contraction``)
-    config : the learner's options (plain JSON-able dict)
-    history : training record (``loss`` list, ``train_time_s``, ...)
+    Parameters
+    ----------
+    module : torch.nn.Module
+        Maps normalised x_n, shape (B, d), to dx_n/dt, shape (B, d).
+    norm : Normalization
+        Between user units and the unit box.
+    learner : str
+        Registry name of the learner that made it (``node``, ``contraction``, ``tracking``).
+    config : dict
+        The learner's options (plain JSON-able dict).
+    history : dict, optional
+        Training record (``loss`` list, ``train_time_s``, ...).
+    demo_box : pair of arrays, each shape (d,), optional
+        (lo, hi), the bounding box of the training demos, user units; None when unknown (a field
+        built by hand). ``lfd certify`` and ``lfd export --format npz-grid`` default to it, grown.
     """
 
     def __init__(self, module: torch.nn.Module, norm: Normalization, learner: str,
-                 config: dict[str, Any], history: dict[str, Any] | None = None) -> None:
+                 config: dict[str, Any], history: dict[str, Any] | None = None,
+                 demo_box: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.module = module.double().eval()
         self.norm = norm
         self.learner = learner
         self.config = dict(config)
         self.history = dict(history or {})
+        self.demo_box: tuple[np.ndarray, np.ndarray] | None = None
+        if demo_box is not None:
+            lo, hi = (np.asarray(c, dtype=np.float64).copy() for c in demo_box)
+            if lo.shape != (self.dim,) or hi.shape != (self.dim,):
+                raise ValueError(f"demo_box must be two corners of shape ({self.dim},), "
+                                 f"got {lo.shape} and {hi.shape}")
+            self.demo_box = (lo, hi)
         for p in self.module.parameters():
             p.requires_grad_(False)
 
@@ -80,14 +102,14 @@ class VelocityField:
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """dx/dt, same shape as x : array, shape (..., d), user units.
 
-        One point, shape (d,), takes the numpy single-point path (``point_fn``, built once per
-        field, a few us); a batch takes the torch path. Both agree to ~1e-12 relative.
+        One point, shape (d,), takes the numpy single-point path (``single_point_evaluator``,
+        built once per field, a few us); a batch takes the torch path. Both agree to ~1e-12 relative.
         """
         x = np.asarray(x, dtype=np.float64)
         if x.shape[-1] != self.dim:
             raise ValueError(f"field expects points of dimension {self.dim}, got shape {x.shape}")
         if x.ndim == 1:
-            return cached_point_fn(self)(x)
+            return cached_single_point_evaluator(self)(x)
         with torch.no_grad():
             return self.torch(torch.tensor(x)).numpy()
 
@@ -113,12 +135,18 @@ class VelocityField:
         """
         return integrate.rollout(self, x0, t, method, substeps)
 
-    def point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
-        """A fast single-point evaluator x (d,) -> dx/dt (d,) in user units, for control loops.
+    def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The fast path for one point, for control loops: ``field(x)`` on x of shape (d,) calls it.
 
-        The default wraps the torch path (~30 us a call). Learners override
-        ``_point_fn_normalized`` with a pure-numpy forward pass (a few us); it must agree with
-        the torch path to 1e-12.
+        The default wraps ``_point_fn_normalized`` in the normalisation; it runs the torch path
+        (~30 us a call) unless a learner overrides ``_point_fn_normalized`` with a pure-numpy
+        forward pass (a few us), which must agree with the torch path to 1e-12.
+
+        Returns
+        -------
+        callable
+            x, array of shape (d,), user units -> dx/dt, array of shape (d,), user units; built
+            on a snapshot of the weights.
         """
         fn_n = self._point_fn_normalized()
         goal, s = self.norm.goal.copy(), float(self.norm.scale)
@@ -142,17 +170,51 @@ class VelocityField:
         """Write the model file atomically (see ``lfd.modelfile``)."""
         from lfd.modelfile import save_payload
 
-        save_payload({
+        payload: dict[str, Any] = {
             "learner": self.learner,
             "dim": self.dim,
             "config": self.config,
             "normalization": self.norm.to_dict(),
             "state_dict": {k: v.detach().clone() for k, v in self.module.state_dict().items()},
             "history": self.history,
-        }, path)
+        }
+        if self.demo_box is not None:
+            payload["demo_box"] = [c.tolist() for c in self.demo_box]
+        save_payload(payload, path)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(learner={self.learner!r}, dim={self.dim})"
+
+
+class ContractingField(VelocityField, ABC):
+    """A field that contracts by construction, with the analytic constants ``lfd.certify`` reports
+    (``lfd.learners.contraction.ContractionField``, ``lfd.learners.tracking.TrackingField``).
+
+    ``rate`` is the learner's ``rate`` option; a subclass gives ``metric_bounds`` (a, b) of its
+    metric M and ``lipschitz_bound``; ``condition_bound`` b / a follows.
+    """
+
+    @property
+    def rate(self) -> float:
+        """The guaranteed contraction rate, 1/s (the same in user and normalised time)."""
+        return float(self.config["rate"])
+
+    @property
+    @abstractmethod
+    def metric_bounds(self) -> tuple[float, float]:
+        """(a, b) with a I <= M(x) <= b I for every x in R^d, user units."""
+
+    @property
+    def condition_bound(self) -> float:
+        """b / a of ``metric_bounds``, analytic: sqrt(b / a) is the overshoot constant of Eq. (18)
+        (Eq. (C1) for the contraction learner, where b / a <= ``max_condition``)."""
+        a, b = self.metric_bounds
+        return b / a
+
+    @property
+    @abstractmethod
+    def lipschitz_bound(self) -> float:
+        """An upper bound of the field's Lipschitz constant in x, 1/s."""
 
 
 class FieldWrapper:
@@ -175,3 +237,8 @@ class FieldWrapper:
     def history(self) -> dict[str, Any]:
         """The nominal field's training record."""
         return dict(getattr(self.field, "history", {}))
+
+    @property
+    def demo_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The nominal field's training-demo box (lo, hi), each shape (d,), or None."""
+        return getattr(self.field, "demo_box", None)

@@ -84,9 +84,16 @@ class MovingGoalField(FieldWrapper):
         delta, rate = self.shift(float(t))
         return np.asarray(self.field(np.asarray(x, dtype=np.float64) - delta)) + rate
 
-    def point_fn(self) -> Callable[..., np.ndarray]:
-        """Single-point evaluator (x (d,), t=0.0) -> dx/dt (d,)."""
-        base, shift = self.field.point_fn(), self.shift
+    def single_point_evaluator(self) -> Callable[..., np.ndarray]:
+        """The fast path for one point, for control loops: ``field(x, t)`` on x of shape (d,) calls it.
+
+        Returns
+        -------
+        callable
+            (x, array of shape (d,), user units; t, float, s, default 0.0) -> dx/dt, array of
+            shape (d,), user units: the wrapped field's ``single_point_evaluator`` at the shifted x.
+        """
+        base, shift = self.field.single_point_evaluator(), self.shift
 
         def f(x: np.ndarray, t: float = 0.0) -> np.ndarray:
             delta, rate = shift(t)

@@ -11,7 +11,7 @@ single-point RK4 to ``rk4`` and ``rk4_phase``):
 - ``solve``: one batched torchdiffeq solve of dy/dt = f(t, y); ``rollout`` wraps it for a field in
   user units, ``rollout_sample_units`` for demos on different uniform time grids at once.
 - ``rk4`` and ``rk4_phase``: classic Runge-Kutta on ONE point in numpy (no torch), for control loops
-  that call a field's ``point_fn`` thousands of times; ``rk4_step`` is their step, shared with the
+  that call a field's ``single_point_evaluator`` thousands of times; ``rk4_step`` is their step, shared with the
   obstacle-avoiding field's batched numpy rollout.
 
 A field whose flow has a closed form (``ContractionField.closed_form_rollout``, the paper's
@@ -300,7 +300,7 @@ def rk4(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, t: np.ndarray,
         substeps: int = 1) -> np.ndarray:
     """Classic RK4 (Eq. (8)) of the autonomous dx/dt = f(x) on one point, in numpy.
 
-    For a field's single-point evaluator (``VelocityField.point_fn``, a few us a call): over
+    For a field's single-point evaluator (``VelocityField.single_point_evaluator``, a few us a call): over
     thousands of control steps it is far faster than the batched torch ``rollout``.
 
     Parameters

@@ -2,11 +2,13 @@
 
 A model file is a ``torch.save`` of a plain dict (strings, numbers, lists, tensors):
 ``{"format_version", "learner", "dim", "config", "normalization", "state_dict", "history",
-"checksum"}``. It is read back with ``torch.load(..., weights_only=True)``, which refuses pickled
-code. ``checksum`` is the sha256 of every other entry (``payload_checksum``): the tensors' dtype,
+"demo_box", "checksum"}`` (``history`` and ``demo_box``, the training demos' bounding box
+[lo, hi], are optional). It is read back with ``torch.load(..., weights_only=True)``, which refuses
+pickled code. ``checksum`` is the sha256 of every other entry (``payload_checksum``): the tensors' dtype,
 shape and bytes in key order, and the canonical JSON of the rest, so one flipped byte anywhere
 in the payload is a ``ModelError`` on load, never a silently different field. Weights must be
-finite. Files of format 1 (no checksum) are refused: train the model again.
+finite. Files of format 1 (no checksum) are refused: train the model again. Older spellings
+within format 2 are mapped on load (``_upgrade``).
 """
 
 from __future__ import annotations
@@ -69,8 +71,9 @@ def load_payload(path: str | os.PathLike, allow_nonfinite: bool = False) -> dict
     """Read and check a model payload, with ``weights_only=True``.
 
     Checks, in order: a readable torch archive of plain data, the required keys and their types,
-    the format version, the checksum, finite weights (unless ``allow_nonfinite``: ``lfd certify``
-    reads such a model to report it NOT certified) and a consistent normalisation. Any failure
+    the format version, the checksum (then older spellings are mapped, ``_upgrade``), finite
+    weights (unless ``allow_nonfinite``: ``lfd certify`` reads such a model to report it NOT
+    certified) and a consistent normalisation. Any failure
     is a one-line ``ModelError`` naming ``path``.
     """
     import torch
@@ -103,8 +106,25 @@ def load_payload(path: str | os.PathLike, allow_nonfinite: bool = False) -> dict
         raise ModelError(f"{path}: {e}") from None
     if payload["checksum"] != checksum:
         raise ModelError(f"{path}: checksum mismatch: the model file is corrupt")
+    _upgrade(payload)
     _check_contents(payload, str(path), allow_nonfinite)
     return payload
+
+
+def _upgrade(payload: dict[str, Any]) -> None:
+    """Map the older spellings of format-2 files to today's, in place, once, after the checksum
+    (which covers the file as written). Every other reader sees only today's spelling."""
+    history = payload.get("history")
+    # Files written before the demo box became an entry of its own kept it in the training history.
+    if "demo_box" not in payload and isinstance(history, dict) and "demo_box" in history:
+        history = dict(history)
+        payload["demo_box"] = history.pop("demo_box")
+        payload["history"] = history
+    # NODE files written before its option "iters" took the name every learner uses, "iterations".
+    config = payload.get("config")
+    if payload.get("learner") == "node" and isinstance(config, dict) and "iters" in config \
+            and "iterations" not in config:
+        payload["config"] = {("iterations" if k == "iters" else k): v for k, v in config.items()}
 
 
 def _check_contents(payload: dict[str, Any], path: str, allow_nonfinite: bool = False) -> None:
@@ -145,7 +165,7 @@ def _check_contents(payload: dict[str, Any], path: str, allow_nonfinite: bool = 
     if loss is not None and (not isinstance(loss, (list, tuple))
                              or not all(isinstance(v, (int, float)) for v in loss)):
         raise bad("history loss is not a list of numbers")
-    box = history.get("demo_box")
+    box = payload.get("demo_box")
     if box is not None:
         try:
             ok = (len(box) == 2 and all(len(c) == dim for c in box)
@@ -153,7 +173,7 @@ def _check_contents(payload: dict[str, Any], path: str, allow_nonfinite: bool = 
         except (TypeError, ValueError):
             ok = False
         if not ok:
-            raise bad(f"history demo_box must be two corners of {dim} finite numbers")
+            raise bad(f"demo_box must be two corners of {dim} finite numbers")
 
 
 def _load_reason(e: BaseException) -> str:

@@ -61,10 +61,10 @@ from typing import Any
 import numpy as np
 
 from lfd.errors import ConfigError
-from lfd.field import FieldWrapper, cached_point_fn
+from lfd.field import FieldWrapper, cached_single_point_evaluator
 from lfd.integrate import rk4_step
 
-__all__ = ["Obstacle", "Sphere", "Box", "Capsule", "AvoidingField", "avoid", "parse_obstacle"]
+__all__ = ["Obstacle", "Sphere", "Box", "Capsule", "AvoidingField", "avoid", "parse_obstacle", "starts_outside"]
 
 _EPS = 1e-12
 #: exponent p of the smooth minimum that merges overlapping obstacles
@@ -111,6 +111,8 @@ class Obstacle(ABC):
 
     # ---- construction
     def _finish(self, dim: int) -> None:
+        """Check the common parameters of a shape of dimension ``dim``; ``kind`` is the class name."""
+        self.kind = type(self).__name__.lower()
         if not (math.isfinite(self.margin) and self.margin >= 0):
             raise ConfigError(f"obstacle margin must be a finite number >= 0, got {self.margin}")
         if self.velocity is not None and self.path is not None:
@@ -226,6 +228,27 @@ class Obstacle(ABC):
         motion = ", moving" if self.moving else ""
         return f"{type(self).__name__}({self.describe()}{motion})"
 
+    def _margin_text(self) -> str:
+        """`` margin M`` for ``describe``, empty without a margin."""
+        return f" margin {self.margin:g}" if self.margin else ""
+
+
+def _mover_velocity(movers: Sequence[tuple[int, Obstacle]], w: Sequence[float], t: float
+                    ) -> tuple[float, float, float]:
+    """The weighted velocity sum_k w_k u_k(t) of the moving obstacles, (k, obstacle) pairs, as
+    three floats (z = 0 in 2-D): the single-point path's frame velocity."""
+    u0 = u1 = u2 = 0.0
+    for k, o in movers:
+        o0, o1, o2 = _pad3(o.offset_velocity(t))
+        u0, u1, u2 = u0 + w[k] * o0, u1 + w[k] * o1, u2 + w[k] * o2
+    return u0, u1, u2
+
+
+def _check_radius(kind: str, radius: float) -> None:
+    """ConfigError unless a shape's radius is a finite number > 0."""
+    if not (math.isfinite(radius) and radius > 0):
+        raise ConfigError(f"{kind} radius must be a finite number > 0, got {radius}")
+
 
 def _pad3(a: np.ndarray, fill: float = 0.0) -> tuple[float, float, float]:
     """A 2- or 3-vector as three floats, z = ``fill`` for 2-D."""
@@ -238,21 +261,25 @@ def _fmt(a: np.ndarray) -> str:
 
 
 @dataclass(eq=False, repr=False)
-class Sphere(Obstacle):
-    """A ball of ``radius`` around ``center`` (shape (d,), d = 2 or 3): Gamma = |x - c| / (r + margin)."""
+class _CentredObstacle(Obstacle):
+    """A shape placed by its centre ``center``, shape (d,), d = 2 or 3 (``Sphere``, ``Box``)."""
 
     center: Any = None
+
+    def _center(self) -> np.ndarray:
+        return self.center
+
+
+@dataclass(eq=False, repr=False)
+class Sphere(_CentredObstacle):
+    """A ball of ``radius`` around ``center`` (shape (d,), d = 2 or 3): Gamma = |x - c| / (r + margin)."""
+
     radius: float = 0.0
 
     def __post_init__(self) -> None:
         self.center = _vec("centre", self.center)
-        if not (math.isfinite(self.radius) and self.radius > 0):
-            raise ConfigError(f"sphere radius must be a finite number > 0, got {self.radius}")
-        self.kind = "sphere"
+        _check_radius("sphere", self.radius)
         self._finish(self.center.size)
-
-    def _center(self) -> np.ndarray:
-        return self.center
 
     @property
     def size(self) -> float:
@@ -277,16 +304,14 @@ class Sphere(Obstacle):
         return sdf
 
     def describe(self) -> str:
-        m = f" margin {self.margin:g}" if self.margin else ""
-        return f"sphere at {_fmt(self.center)} radius {self.radius:g}{m}"
+        return f"sphere at {_fmt(self.center)} radius {self.radius:g}{self._margin_text()}"
 
 
 @dataclass(eq=False, repr=False)
-class Box(Obstacle):
+class Box(_CentredObstacle):
     """An axis-aligned box, ``center`` and ``half_sizes`` (shape (d,) each), grown by the margin
     into a rounded box (edges and corners rounded with radius ``margin``)."""
 
-    center: Any = None
     half_sizes: Any = None
 
     def __post_init__(self) -> None:
@@ -294,11 +319,7 @@ class Box(Obstacle):
         self.half_sizes = _vec("half sizes", self.half_sizes, self.center.size)
         if np.any(self.half_sizes <= 0):
             raise ConfigError(f"box half sizes must be > 0, got {self.half_sizes.tolist()}")
-        self.kind = "box"
         self._finish(self.center.size)
-
-    def _center(self) -> np.ndarray:
-        return self.center
 
     @property
     def size(self) -> float:
@@ -339,8 +360,7 @@ class Box(Obstacle):
         return sdf
 
     def describe(self) -> str:
-        m = f" margin {self.margin:g}" if self.margin else ""
-        return f"box at {_fmt(self.center)} half sizes {_fmt(self.half_sizes)}{m}"
+        return f"box at {_fmt(self.center)} half sizes {_fmt(self.half_sizes)}{self._margin_text()}"
 
 
 @dataclass(eq=False, repr=False)
@@ -355,9 +375,7 @@ class Capsule(Obstacle):
     def __post_init__(self) -> None:
         self.a = _vec("end point", self.a)
         self.b = _vec("end point", self.b, self.a.size)
-        if not (math.isfinite(self.radius) and self.radius > 0):
-            raise ConfigError(f"capsule radius must be a finite number > 0, got {self.radius}")
-        self.kind = "capsule"
+        _check_radius("capsule", self.radius)
         self._finish(self.a.size)
 
     def _center(self) -> np.ndarray:
@@ -398,8 +416,7 @@ class Capsule(Obstacle):
         return sdf
 
     def describe(self) -> str:
-        m = f" margin {self.margin:g}" if self.margin else ""
-        return f"capsule from {_fmt(self.a)} to {_fmt(self.b)} radius {self.radius:g}{m}"
+        return f"capsule from {_fmt(self.a)} to {_fmt(self.b)} radius {self.radius:g}{self._margin_text()}"
 
 
 # ---------------------------------------------------------------- parsing
@@ -646,8 +663,8 @@ class AvoidingField(FieldWrapper):
         The goal must have Gamma >= this for every obstacle (default 1.01: 1% of the obstacle's
         size outside it), else ``ConfigError`` ("goal lies inside obstacle ...").
 
-    Calls: ``field(x, t=0)`` with x of shape (d,) or (..., d); ``point_fn()`` for control loops;
-    ``rollout(x0, t)``; ``gamma(x, t)`` the smallest Gamma over obstacles.
+    Calls: ``field(x, t=0)`` with x of shape (d,) or (..., d); ``single_point_evaluator()`` for
+    control loops; ``rollout(x0, t)``; ``gamma(x, t)`` the smallest Gamma over obstacles.
 
     References
     ----------
@@ -744,7 +761,7 @@ class AvoidingField(FieldWrapper):
         if x.shape[-1] != self.dim:
             raise ValueError(f"field expects points of dimension {self.dim}, got shape {x.shape}")
         if x.ndim == 1:
-            return cached_point_fn(self)(x, t)
+            return cached_single_point_evaluator(self)(x, t)
         flat = x.reshape(-1, self.dim)
         v = self.field(flat, t) if self._time_varying else self.field(flat)
         return self.modulate(flat, np.asarray(v, dtype=np.float64), t).reshape(x.shape)
@@ -785,13 +802,20 @@ class AvoidingField(FieldWrapper):
         return x
 
     # ---- single-point path
-    def point_fn(self) -> Callable[..., np.ndarray]:
-        """A fast single-point evaluator (x (d,), t=0.0) -> dx/dt (d,), plain floats inside
-        (written out for 3-D; a 2-D point is padded with z = 0).
+    def single_point_evaluator(self) -> Callable[..., np.ndarray]:
+        """The fast path for one point, for control loops: ``field(x, t)`` on x of shape (d,) calls it.
 
+        Plain floats inside (written out for 3-D; a 2-D point is padded with z = 0).
         ``scripts/bench_obstacles.py`` measures its extra cost over the nominal field's
-        ``point_fn``."""
-        base = self.field.point_fn()
+        ``single_point_evaluator``.
+
+        Returns
+        -------
+        callable
+            (x, array of shape (d,), user units; t, float, s, default 0.0) -> dx/dt, array of
+            shape (d,), user units.
+        """
+        base = self.field.single_point_evaluator()
         tv = self._time_varying
         geoms = [u.point_geometry() for u in self.units]
         movers = [(k, u.obstacle) for k, u in enumerate(self.units) if u.moving]
@@ -813,15 +837,9 @@ class AvoidingField(FieldWrapper):
             if K == 0:
                 return array((v0, v1)) if two else array((v0, v1, v2))
             geo = [gm(x0, x1, x2, t) for gm in geoms]
-            if K == 1:
-                w: Sequence[float] = (1.0,)
-            else:
-                w = _kzb_weights([gg[0] for gg in geo])
+            w: Sequence[float] = (1.0,) if K == 1 else _kzb_weights([gg[0] for gg in geo])
             if movers:
-                u0 = u1 = u2 = 0.0
-                for k, o in movers:
-                    o0, o1, o2 = _pad3(o.offset_velocity(t))
-                    u0, u1, u2 = u0 + w[k] * o0, u1 + w[k] * o1, u2 + w[k] * o2
+                u0, u1, u2 = _mover_velocity(movers, w, t)
                 v0, v1, v2 = v0 - u0, v1 - u1, v2 - u2
             for k in range(K):
                 g, n0, n1, n2, r0, r1, r2 = geo[k]
@@ -855,3 +873,33 @@ def avoid(field: Any, obstacles: Sequence[Obstacle | str] | Obstacle | str, **kw
         obstacles = [obstacles]
     obs = [parse_obstacle(o, field.dim) if isinstance(o, str) else o for o in obstacles]
     return AvoidingField(field, obs, **kw)
+
+
+def starts_outside(field: AvoidingField, demos: Any, n: int, seed: int = 0, spread: float = 0.15,
+                   clearance: float = 1.05) -> np.ndarray:
+    """Seeded starts near the demos' starts and outside every obstacle of ``field``.
+
+    Parameters
+    ----------
+    field : AvoidingField
+        Its ``gamma`` (> 1 outside every obstacle) decides what is outside.
+    demos : DemoSet
+        x of shape (N, T, d); a start is a demo start plus uniform noise of +-spread x the demos'
+        extent per coordinate.
+    n, seed, spread : int, int, float
+        How many starts, the numpy seed, the noise's half-width as a fraction of the extent.
+    clearance : float
+        Keep only starts with gamma > clearance.
+
+    Returns
+    -------
+    array, shape (n, d)
+    """
+    rng = np.random.default_rng(seed)
+    extent = np.ptp(demos.x.reshape(-1, demos.dim), axis=0)
+    out: list[np.ndarray] = []
+    while len(out) < n:
+        x = demos.x[rng.integers(len(demos.x)), 0] + rng.uniform(-spread, spread, demos.dim) * extent
+        if field.gamma(x) > clearance:
+            out.append(x)
+    return np.array(out)

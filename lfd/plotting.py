@@ -121,7 +121,7 @@ def curriculum_stages(history: dict[str, Any], config: dict[str, Any] | None) ->
     from lfd.learners.node import segment_length
 
     n = len(history.get("loss") or [])
-    cfg = SimpleNamespace(curriculum=float(config.get("curriculum", 0.0)), iters=int(config.get("iters", n)),
+    cfg = SimpleNamespace(curriculum=float(config.get("curriculum", 0.0)), iterations=int(config.get("iterations", n)),
                           seg=int(config["seg"]), seg_start=int(config["seg_start"]))
     stages: list[tuple[int, int]] = []
     for k in range(n):

@@ -274,12 +274,21 @@ def load_robot(spec: str, ee_frame: str | None = None, actuation: str = "positio
                table: bool = False) -> RobotModel:
     """Load an arm in MuJoCo and Pinocchio.
 
-    spec : "planar" | "panda" | path to a .urdf or MJCF .xml file
-    ee_frame : Pinocchio frame of the tool (default per built-in robot; required for a path)
-    actuation : "position" (PD servos + gravity compensation) or "torque" (motors, ctrl = joint torque)
-    visuals : draw a URDF's <visual> meshes (COLLADA converted once into a user cache, see
-        ``robots.visual``); False draws the collision meshes, a colour per link. They never collide.
-    table : add a table under the robot's workspace (drawn only: it does not collide)
+    Parameters
+    ----------
+    spec, ee_frame : str, and str or None
+        ``"planar"``, ``"panda"`` or a .urdf / MJCF .xml path; the tool's Pinocchio frame (required for a path).
+    actuation : str
+        ``"position"`` (PD servos + gravity compensation) or ``"torque"`` (motors, ctrl = joint torque).
+        Checked here only: the robot carries it (``RobotModel.actuation``) to the simulation.
+    visuals, table : bool
+        Draw a URDF's <visual> meshes (converted once into a user cache, ``robots.visual``; False: the
+        collision meshes, a colour per link); add a table under the workspace. Neither collides.
+
+    Returns
+    -------
+    RobotModel
+        The arm (``RobotError``: unknown robot, frame or actuation, or a file the engines read differently).
     """
     if actuation not in ACTUATIONS:
         raise RobotError(f"unknown actuation '{actuation}'; known: {', '.join(ACTUATIONS)}")
@@ -287,11 +296,7 @@ def load_robot(spec: str, ee_frame: str | None = None, actuation: str = "positio
     kind = sources.source_kind(source.path)
     mj_spec, assets = sources.urdf_spec(source.path) if kind == "urdf" else sources.mjcf_spec(source.path)
     if kind == "urdf":
-        report = visual.add_visuals(mj_spec, source.path, assets, _resolve_visual, enabled=visuals)
-        if report.fallback:
-            first = next(iter(report.fallback.items()))
-            warnings.warn(f"{source.name}: {len(report.fallback)} link(s) drawn with their collision meshes "
-                          f"({first[0]}: {first[1]})", RuntimeWarning, stacklevel=2)
+        _add_visuals(mj_spec, source, assets, visuals)
     pin_model = sources.pinocchio_model(source.path, kind, source.locked)
     frame_id = _frame_id(pin_model, source.ee_frame)
     joints = tuple(pin_model.names[1:])
@@ -317,13 +322,22 @@ def load_robot(spec: str, ee_frame: str | None = None, actuation: str = "positio
         mj_qpos_adr=np.array([mj_model.jnt_qposadr[mj_model.joint(j).id] for j in joints], dtype=int),
         mj_dof_adr=np.array([mj_model.jnt_dofadr[mj_model.joint(j).id] for j in joints], dtype=int),
         mj_actuator_ids=np.array([mj_model.actuator(f"act_{j}").id for j in joints], dtype=int),
-        q_home=q_home, q_min=q_min, q_max=q_max, v_max=v_max, planar=planar,
+        q_home=q_home, q_min=q_min, q_max=q_max, v_max=v_max, planar=planar, actuation=actuation,
     )
     _check_ee_site(robot, frame_id)
     for array in (robot.mj_qpos_adr, robot.mj_dof_adr, robot.mj_actuator_ids, robot.q_home, robot.q_min, robot.q_max,
                   robot.v_max):
         array.setflags(write=False)
     return robot
+
+
+def _add_visuals(mj_spec: mujoco.MjSpec, source: _Source, assets: dict[str, bytes], enabled: bool) -> None:
+    """Add a URDF's visual meshes (``robots.visual``); warn once about links drawn with their collision meshes."""
+    report = visual.add_visuals(mj_spec, source.path, assets, _resolve_visual, enabled=enabled)
+    if report.fallback:
+        first = next(iter(report.fallback.items()))
+        warnings.warn(f"{source.name}: {len(report.fallback)} link(s) drawn with their collision meshes "
+                      f"({first[0]}: {first[1]})", RuntimeWarning, stacklevel=3)
 
 
 def _check_ee_site(robot: RobotModel, frame_id: int) -> None:

@@ -11,14 +11,30 @@ import pinocchio
 
 @dataclass(frozen=True)
 class RobotModel:
-    """A robot arm in both engines.
+    """A robot arm in both engines (n arm joints). The arrays are read-only (copy before modifying).
 
-    mjcf_xml : full MuJoCo scene (robot, floor, lights, camera "workspace", actuators); compile it with ``mj_assets``.
-    pin_model : Pinocchio model of the arm joints only (fingers and other locked joints removed).
-    arm_joints : controlled joint names in Pinocchio q order; the mj_* index arrays, shape (n,), follow that order.
-    q_home, q_min, q_max, v_max : array, shape (n,): home posture and joint position / velocity limits.
-    planar : True when every arm joint turns about world z, so the task is the 2-D position (rows x, y).
-    The arrays are read-only (copy before modifying).
+    Attributes
+    ----------
+    name : str
+    mjcf_xml : str
+        Full MuJoCo scene (robot, floor, lights, camera "workspace", actuators); compile it with ``mj_assets``.
+    mj_assets : dict of str to bytes
+    mj_model : mujoco.MjModel
+    pin_model : pinocchio.Model
+        The arm joints only (fingers and other locked joints removed).
+    ee_frame, mj_ee_site : str
+        The tool's Pinocchio frame and the MuJoCo site placed on it.
+    arm_joints : tuple of str, length n
+        Controlled joint names in Pinocchio q order; the mj_* index arrays follow that order.
+    mj_qpos_adr, mj_dof_adr, mj_actuator_ids : ndarray of int, shape (n,)
+    q_home, q_min, q_max, v_max : ndarray, shape (n,)
+        Home posture and joint position / velocity limits.
+    planar : bool
+        True when every arm joint turns about world z, so the task is the 2-D position (rows x, y).
+    actuation : str
+        ``"position"`` (a PD servo with gravity compensation per arm joint) or ``"torque"`` (a motor per
+        arm joint, ctrl = joint torque): what ``load_robot`` built into the scene, and the one source
+        the simulation (``sim.controller``, ``sim.Experiment``) reads it from.
     """
 
     name: str
@@ -37,6 +53,7 @@ class RobotModel:
     q_max: np.ndarray
     v_max: np.ndarray
     planar: bool
+    actuation: str
 
     @property
     def n(self) -> int:

@@ -9,11 +9,11 @@ or loads the contraction kernel then), and the ratio to the NODE. Asserts nothin
 
 from __future__ import annotations
 
-import sys
 import time
 import warnings
 
 import numpy as np
+from _bench import run_main
 
 
 def time_calls(f, x: np.ndarray, blocks: int = 200, calls: int = 50) -> tuple[float, float]:  # type: ignore[no-untyped-def]
@@ -37,7 +37,7 @@ def main() -> int:
     demos = lfd.spiral()
     x = demos.x[0, 10].copy()
     rows = []
-    for learner, opts in (("node", {"iters": 50}), ("contraction", {"iterations": 30}), ("tracking", {})):
+    for learner, opts in (("node", {"iterations": 50}), ("contraction", {"iterations": 30}), ("tracking", {})):
         field = lfd.train(learner, demos, seed=0, progress=False, **opts)
         t0 = time.perf_counter()
         field(x)
@@ -52,8 +52,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    try:
-        sys.exit(main())
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        sys.exit(130)
+    run_main(main, "bench_field")

@@ -17,17 +17,18 @@ import sys
 import time
 
 import numpy as np
+from _bench import run_main
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 import lfd  # noqa: E402
 import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
+from lfd.cache import cached_field  # noqa: E402
 from robots import IK_BACKENDS, RobotError, load_robot  # noqa: E402
 from sim.controller import (
     ACTUATIONS,  # noqa: E402
     FieldController,  # noqa: E402
 )
-from sim.modelcache import cached_field  # noqa: E402
 
 
 def replay_cost(exp: sim.Experiment, field: lfd.VelocityField, q_path: np.ndarray, backend: str) -> np.ndarray:
@@ -35,7 +36,7 @@ def replay_cost(exp: sim.Experiment, field: lfd.VelocityField, q_path: np.ndarra
     ctl = FieldController(exp.robot, exp.placement, 1.0 / exp.options["control_hz"], ik=backend,
                           rotation_ref=exp.rotation_ref, mj_model=exp.physics.model.ptr)
     ctl.reset(q_path[0])
-    f = field.point_fn()
+    f = field.single_point_evaluator()
     out = np.empty(len(q_path))
     clock = time.perf_counter
     for k, q in enumerate(q_path):
@@ -83,8 +84,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    try:
-        sys.exit(main())
-    except KeyboardInterrupt:
-        print("bench_ik: interrupted", file=sys.stderr)
-        sys.exit(130)
+    run_main(main, "bench_ik")

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
+from _bench import none_and_push, run_main
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
@@ -38,9 +39,9 @@ import mujoco  # noqa: E402
 
 import lfd  # noqa: E402
 import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
+from lfd.cache import cached_field  # noqa: E402
 from robots import RobotError, load_robot  # noqa: E402
 from sim.controller import ACTUATIONS  # noqa: E402
-from sim.modelcache import cached_field  # noqa: E402
 
 
 def stats(x: np.ndarray) -> str:
@@ -68,7 +69,7 @@ def holding_data(exp: sim.Experiment, q: np.ndarray) -> mujoco.MjData:
     m, robot = exp.physics.model.ptr, exp.robot
     d = mujoco.MjData(m)
     d.qpos[robot.mj_qpos_adr] = q
-    if exp.options["actuation"] == "position":
+    if exp.robot.actuation == "position":
         d.ctrl[robot.mj_actuator_ids] = q
     else:
         d.ctrl[robot.mj_actuator_ids] = pin.computeGeneralizedGravity(robot.pin_model, robot.pin_model.createData(), q)
@@ -84,7 +85,7 @@ def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict
     env.reset()
     task = env.task
     m, d = env.physics.model.ptr, env.physics.data.ptr
-    ctl, f = task.controller, field.point_fn()
+    ctl, f = task.controller, field.single_point_evaluator()
     qadr = exp.robot.mj_qpos_adr
     split = ctl.uses_mj_dynamics
     names = ("mj_step1", "read state", "FK (Pinocchio)", "field f(x)", "twist+IK+command", "mj_step2")
@@ -116,7 +117,7 @@ def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict
 
 def field_cost(field: lfd.VelocityField, x: np.ndarray, n: int = 20000) -> np.ndarray:
     """Wall time of n single-point field evaluations at the points x, shape (K, d), shape (n,)."""
-    f = field.point_fn()
+    f = field.single_point_evaluator()
     out = np.empty(n)
     clock = time.perf_counter
     for k in range(n):
@@ -132,7 +133,7 @@ def env_steps(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> np.n
     env = sim.make_environment(exp.robot, exp.placement, exp.start, field.goal, duration_s=exp.duration_s,
                                rotation_ref=exp.rotation_ref, physics=exp.physics, **exp.options)
     ts = env.reset()
-    f, to_task = field.point_fn(), exp.placement.to_task
+    f, to_task = field.single_point_evaluator(), exp.placement.to_task
     out = np.empty(steps)
     clock = time.perf_counter
     for k in range(steps):
@@ -188,13 +189,9 @@ def actuation(robot_name: str, demos: lfd.DemoSet, field: lfd.VelocityField, ik:
                            ("position", True, "servo + velocity ff"),
                            ("torque", True, "computed torque")):
         robot = load_robot(robot_name, actuation=act)
-        exp = sim.Experiment(robot, demos, plane=plane, ik=ik, actuation=act, feedforward=ff)
-        a = exp.run(field, "none").metrics
-        b = exp.run(field, "push").metrics
-        rec = b["recovery_time_s"]
+        a, b, rec = none_and_push(sim.Experiment(robot, demos, plane=plane, ik=ik, feedforward=ff), field)
         print(f"{act:12s} {label:24s} {a['tracking_rmse_m'] * 1e3:8.2f} mm  {a['final_goal_error_m'] * 1e3:7.2f} mm"
-              f"  {b['max_deviation_m'] * 1e3:8.2f} mm  {'never' if rec is None else f'{rec:5.2f} s':>8s}"
-              f"  {a['control_step_us']:5.0f} us")
+              f"  {b['max_deviation_m'] * 1e3:8.2f} mm  {rec:>8s}  {a['control_step_us']:5.0f} us")
 
 
 def planes(robot_name: str, demos: lfd.DemoSet, field: lfd.VelocityField, ik: str, act: str) -> None:
@@ -203,13 +200,9 @@ def planes(robot_name: str, demos: lfd.DemoSet, field: lfd.VelocityField, ik: st
         return
     print(f"\ntask plane ({act})   tracking_rmse  imitation_rmse  final_goal  push max_dev  recovery")
     for plane in ("horizontal", "vertical"):
-        exp = sim.Experiment(robot, demos, plane=plane, ik=ik, actuation=act)
-        a = exp.run(field, "none").metrics
-        b = exp.run(field, "push").metrics
-        rec = b["recovery_time_s"]
+        a, b, rec = none_and_push(sim.Experiment(robot, demos, plane=plane, ik=ik), field)
         print(f"{plane:18s} {a['tracking_rmse_m'] * 1e3:8.2f} mm  {a['imitation_rmse_m'] * 1e3:9.2f} mm"
-              f"  {a['final_goal_error_m'] * 1e3:7.2f} mm  {b['max_deviation_m'] * 1e3:8.2f} mm"
-              f"  {'never' if rec is None else f'{rec:5.2f} s':>8s}")
+              f"  {a['final_goal_error_m'] * 1e3:7.2f} mm  {b['max_deviation_m'] * 1e3:8.2f} mm  {rec:>8s}")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -240,7 +233,7 @@ def main() -> int:
         demos = lfd.load_demos(args.demos)
         fields = [lfd.load(args.model)] if args.model else [cached_field(name, demos)[0] for name in learners]
         robot = load_robot(args.robot, actuation=args.actuation)
-        exp = sim.Experiment(robot, demos, plane=args.plane, ik=args.ik, actuation=args.actuation)
+        exp = sim.Experiment(robot, demos, plane=args.plane, ik=args.ik)
     except (lfd.LfdError, sim.SimError, RobotError) as e:
         print(f"bench_loop: error: {e}", file=sys.stderr)
         return 2
@@ -265,8 +258,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    try:
-        sys.exit(main())
-    except KeyboardInterrupt:
-        print("bench_loop: interrupted", file=sys.stderr)
-        sys.exit(130)
+    run_main(main, "bench_loop")

@@ -12,7 +12,7 @@ turns at t = 25), so ``goal_equilibrium=False``.
 
 MAE = mean |y_hat(t_k) - y(t_k)| over the 1000 samples and both coordinates, in the original
 units, with y_hat integrated from y0 over the whole span by dopri5 (rtol 1e-7) in float64: the
-learned field's own flow, not the training solver. Also times ``field.point_fn()``, the numpy
+learned field's own flow, not the training solver. Also times ``field.single_point_evaluator()``, the numpy
 single-point path of the control loop (median and p95). Prints numbers; never asserts a time.
 
     python scripts/bench_node.py [--seeds 0 1 2] [--iters 800] [--progress]
@@ -37,7 +37,7 @@ T_END, N_SAMPLES = 25.0, 1000
 # Options of the run. Unlike the learner's defaults (tuned for ~100-sample robot demos): all 1000
 # samples (samples=0), batch 256 and 800 iterations, lr 2e-2 (over seeds 0-4: max MAE 0.036,
 # against 0.040 with 1e-2 and 0.046 with 700 iterations), no equilibrium imposed at the goal.
-OPTIONS = dict(hidden=(64, 64), activation="tanh", iters=800, lr=2e-2, lr_final=1e-4, seg=10, seg_start=2,
+OPTIONS = dict(hidden=(64, 64), activation="tanh", iterations=800, lr=2e-2, lr_final=1e-4, seg=10, seg_start=2,
                curriculum=0.5, batch=256, samples=0, solver="rk4", dtype="float32",
                goal_equilibrium=False)
 
@@ -54,8 +54,8 @@ def spiral_data() -> tuple[np.ndarray, np.ndarray]:
 
 def point_fn_us(field: lfd.VelocityField, x: np.ndarray, blocks: int = 200,
                 calls: int = 100) -> tuple[float, float]:
-    """Median and p95 time of one ``field.point_fn()`` call, in us, over blocks of ``calls`` calls."""
-    f = field.point_fn()
+    """Median and p95 time of one ``field.single_point_evaluator()`` call, in us, over blocks of ``calls`` calls."""
+    f = field.single_point_evaluator()
     times = []
     for b in range(blocks):
         xb = x[(b * calls) % len(x):][:calls]
@@ -82,7 +82,7 @@ def run(seed: int, t: np.ndarray, y: np.ndarray, progress: bool, **options: obje
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
-    ap.add_argument("--iters", type=int, default=OPTIONS["iters"])
+    ap.add_argument("--iters", type=int, default=OPTIONS["iterations"])
     ap.add_argument("--progress", action="store_true", help="show the training progress bar")
     args = ap.parse_args()
     torch.set_num_threads(1)  # small batches: a second intra-op thread only waits (see the learner)
@@ -91,7 +91,7 @@ def main() -> None:
           f"{OPTIONS['activation']}, {args.iters} iterations; load {os.getloadavg()[0]:.2f}")
     results = []
     for seed in args.seeds:
-        r = run(seed, t, y, args.progress, iters=args.iters)
+        r = run(seed, t, y, args.progress, iterations=args.iters)
         results.append(r)
         print(f"seed {seed}: train wall {r['wall_s']:6.2f} s  cpu {r['cpu_s']:6.2f} s  MAE {r['mae']:.4f}  "
               f"point_fn {r['point_us']:.1f} us (p95 {r['point_p95_us']:.1f})"

@@ -32,7 +32,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import lfd  # noqa: E402
 from lfd.goal import shift_goal  # noqa: E402
-from lfd.obstacles import Box, Capsule, Sphere, avoid  # noqa: E402
+from lfd.obstacles import Box, Capsule, Sphere, avoid, starts_outside  # noqa: E402
 
 SHAPES = ("Angle", "CShape", "GShape", "Sshape", "Worm")
 
@@ -47,24 +47,13 @@ def on_path(demos: lfd.DemoSet, fraction: float, radius: float) -> Sphere:
     return Sphere(x[np.searchsorted(s, fraction * s[-1])], radius * extent_of(demos))
 
 
-def starts_for(field, demos: lfd.DemoSet, n: int, seed: int = 0, spread: float = 0.15) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    ext = np.ptp(demos.x.reshape(-1, demos.dim), axis=0)
-    out: list[np.ndarray] = []
-    while len(out) < n:
-        x = demos.x[rng.integers(len(demos.x)), 0] + rng.uniform(-spread, spread, demos.dim) * ext
-        if field.gamma(x) > 1.05:
-            out.append(x)
-    return np.array(out)
-
-
 def length(y: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.diff(y, axis=-2), axis=-1).sum(axis=-1)
 
 
 def run_case(name: str, field, demos: lfd.DemoSet, obstacles, n: int, check=None) -> None:
     f = avoid(field, obstacles)
-    starts = starts_for(f, demos, n)
+    starts = starts_outside(f, demos, n)
     t = np.linspace(0.0, 4.0 * float(demos.t[0, -1]), 401)
     t0 = time.perf_counter()
     y = f.rollout(starts, t)
@@ -99,7 +88,7 @@ def time_calls(fa, fb, x: np.ndarray, calls: int) -> tuple[np.ndarray, np.ndarra
 
 
 def cost(name: str, field, obstacles, x: np.ndarray, calls: int) -> None:
-    bare, mod = field.point_fn(), avoid(field, obstacles).point_fn()
+    bare, mod = field.single_point_evaluator(), avoid(field, obstacles).single_point_evaluator()
     for _ in range(2000):
         bare(x), mod(x)
     tb, tm = time_calls(bare, mod, x, calls)
@@ -160,7 +149,7 @@ def main() -> None:
             Capsule(demos.goal + [-0.6, 0.4], demos.goal + [-0.4, 0.6], 0.05)]
     cost("2-D contraction field", field, obs2, demos.x[0, 0], args.calls)
     d3 = lfd.load_demos("spiral3d")
-    node3 = lfd.train("node", d3, seed=0, iters=2)   # timing only: the cost does not depend on training
+    node3 = lfd.train("node", d3, seed=0, iterations=2)   # timing only: the cost does not depend on training
     g = d3.goal
     obs3 = [Sphere(g + [0.3, 0.2, 0.1], 0.1), Box(g + [-0.4, 0.2, 0.1], [0.1, 0.1, 0.2]),
             Capsule(g + [0.2, -0.4, 0.0], g + [0.4, -0.4, 0.3], 0.05)]

@@ -71,8 +71,8 @@ try:
     import numpy as np  # noqa: E402
 
     import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
+    from robots import ACTUATIONS  # noqa: E402
     from sim.camera import CameraSpec  # noqa: E402
-    from sim.controller import ACTUATIONS  # noqa: E402
     from sim.experiment import scenario  # noqa: E402
 except KeyboardInterrupt:  # Ctrl-C during the start-up imports: no traceback
     print("demo_arm: interrupted", file=sys.stderr)
@@ -233,10 +233,7 @@ def vector3(text: str) -> tuple[float, float, float]:
 
 def perturbations(args: argparse.Namespace, name: str) -> tuple[Any, ...]:
     """The perturbations of scenario ``name``, the push taking its --push-* flags."""
-    if name != "push":
-        return scenario(name, args.seed)
-    return (sim.Push(force_n=args.push_force, duration_s=args.push_duration, start_s=args.push_start,
-                     direction=args.push_direction, seed=args.seed),)
+    return push_of(args, args.seed) if name == "push" else scenario(name, args.seed)
 
 
 def check_push(args: argparse.Namespace) -> None:
@@ -393,9 +390,9 @@ def plan_outputs(args: argparse.Namespace, out: Path, json_path: Path, learners:
 
 def run(args: argparse.Namespace) -> int:
     import lfd
+    from lfd.cache import cached_field
     from lfd.obstacles import parse_obstacle
     from robots import load_robot
-    from sim.modelcache import cached_field
     from sim.obstacles import obstacle_contacts, with_obstacles
 
     progress = not args.quiet and sys.stderr.isatty()  # bars only on a terminal
@@ -429,12 +426,11 @@ def run(args: argparse.Namespace) -> int:
             raise lfd.ConfigError(str(e)) from None
     # the placement (reachability) and the push are checked before any training
     exp = sim.Experiment(robot, demos, placement=placement(args, robot, demos), plane=args.plane,
-                         size_m=args.size_m, control_hz=args.control_hz, ik=args.ik, actuation=args.actuation,
-                         fps=args.fps)
+                         size_m=args.size_m, control_hz=args.control_hz, ik=args.ik, fps=args.fps)
     if obstacles:  # the same placement, on a scene that also holds the obstacles
         robot = with_obstacles(robot, obstacles, exp.placement)
         exp = sim.Experiment(robot, demos, placement=exp.placement, control_hz=args.control_hz, ik=args.ik,
-                             actuation=args.actuation, fps=args.fps)
+                             fps=args.fps)
     pushes = "push" in args.perturb or args.side_by_side == "push" or args.grid
     if pushes and args.push_start + args.push_duration > exp.duration_s:
         raise lfd.ConfigError(f"the push ends at {args.push_start + args.push_duration:g} s, after the run "
@@ -553,9 +549,7 @@ def _write_outputs(args: argparse.Namespace, exp: Any, results: list[Any], side:
     t_video = t_files = 0.0
     for r in results:
         key = (r.learner, r.scenario)
-        entry: dict[str, Any] = {"learner": r.learner, "scenario": r.scenario,
-                                 "perturbations": [p.describe() for p in perturbations(args, r.scenario)],
-                                 "metrics": r.metrics}
+        entry = run_entry(r)
         t0 = time.perf_counter()
         ts = timeseries.arrays(r, exp.placement, exp.robot)
         timeseries.save(new_file(plan.series[key]), ts)
@@ -583,8 +577,7 @@ def _write_outputs(args: argparse.Namespace, exp: Any, results: list[Any], side:
                             titles=[f"{r.learner} / {r.scenario}" for r in side])
         report["side_by_side"] = {"video": str(plan.side_by_side), "video_frames": frames,
                                   "render_s": time.perf_counter() - t0,
-                                  "runs": [{"learner": r.learner, "scenario": r.scenario, "metrics": r.metrics}
-                                           for r in side]}
+                                  "runs": [run_entry(r) for r in side]}
         t_video += report["side_by_side"]["render_s"]
     if grid and plan.grid is not None:
         if verbose:
@@ -595,7 +588,7 @@ def _write_outputs(args: argparse.Namespace, exp: Any, results: list[Any], side:
         frames = exp.render(grid, new_file(plan.grid), w, h, args.fps, progress, camera_,
                             titles=[f"{r.learner} / push, seed {s}" for r, s in zip(grid, seeds)])
         report["grid"] = {"video": str(plan.grid), "video_frames": frames, "seeds": seeds,
-                          "runs": [{"seed": s, "metrics": r.metrics} for r, s in zip(grid, seeds)]}
+                          "runs": [{"seed": s, **run_entry(r)} for r, s in zip(grid, seeds)]}
         t_video += time.perf_counter() - t0
     t0 = time.perf_counter()
     if "paths" in plan.extra_plots:
@@ -628,6 +621,13 @@ def _write_outputs(args: argparse.Namespace, exp: Any, results: list[Any], side:
     }
     outputs.make_dir(json_path.parent)
     write_json(json_path, report)
+
+
+def run_entry(r: sim.RunResult) -> dict[str, Any]:
+    """A run's entry in metrics.json: learner, scenario, the perturbations it ran with (taken from
+    the result, ``RunResult.perturbations``, each ``describe()``) and its metrics."""
+    return {"learner": r.learner, "scenario": r.scenario,
+            "perturbations": [p.describe() for p in r.perturbations], "metrics": r.metrics}
 
 
 def _run_figure(ts: dict[str, Any], r: Any) -> Any:

@@ -27,9 +27,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import lfd  # noqa: E402
 import sim  # noqa: E402
+from lfd.cache import cached_field  # noqa: E402
 from lfd.obstacles import Sphere, avoid  # noqa: E402
 from robots import load_robot  # noqa: E402
-from sim.modelcache import cached_field  # noqa: E402
 from sim.obstacles import obstacle_contacts, with_obstacles  # noqa: E402
 from sim.perturbations import GoalShift  # noqa: E402
 

@@ -15,7 +15,7 @@ Runs (each a ``sim.Experiment`` run of a learned field, ``sim.perturbations``):
 Each run is written as ``OUT/runs/<id>.json`` (``lfd.io.write_json``: strict JSON,
 atomic) with a ``key`` hash of everything that determines it; a later sweep skips a run whose
 record exists with the same key, so an interrupted sweep resumes. The fields are trained (or
-read from ``sim.modelcache``'s cache) here, before any worker starts. Then ``OUT/summary.json``
+read from ``lfd.cache``'s cache) here, before any worker starts. Then ``OUT/summary.json``
 (counts, success rates, recovery statistics per robot x learner x kind, throughput),
 ``OUT/heatmap.png`` (push direction x magnitude -> median recovery time and success rate, one
 row per robot x learner) and ``OUT/basin.png`` (start offsets in task space, coloured by success).
@@ -98,8 +98,8 @@ def _experiment(spec: RunSpec) -> tuple[Any, Any]:
     if key not in _CACHE:
         import lfd
         import sim
+        from lfd.cache import cached_field
         from robots import load_robot
-        from sim.modelcache import cached_field
 
         demos = lfd.load_demos(spec.demos)
         field = cached_field(spec.learner, demos, options=json.loads(spec.options), directory=spec.model_dir,
@@ -373,7 +373,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--goal-tol", type=float, default=0.005, help="success: final goal error below this, m")
     ap.add_argument("--limit", type=int, default=0, help="run only the first N grid points (0: all)")
     ap.add_argument("--option", action="append", default=[], metavar="LEARNER.KEY=VALUE",
-                    help="a training option of a learner, e.g. node.iters=200 (VALUE is JSON, else a string)")
+                    help="a training option of a learner, e.g. node.iterations=200 (VALUE is JSON, else a string)")
     ap.add_argument("--executor", default="local", choices=("local", "ray"))
     ap.add_argument("--address", help="with --executor ray: join the Ray cluster at HOST:PORT (default: $RAY_ADDRESS)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel runs (default: CPU count)")
@@ -425,8 +425,8 @@ def check(args: argparse.Namespace) -> None:
 def prepare_models(args: argparse.Namespace) -> str:
     """Train (or find) every field now, so workers only read them; returns the model directory."""
     import lfd
+    from lfd.cache import cache_dir, cached_field
     from robots import load_robot
-    from sim.modelcache import cache_dir, cached_field
 
     model_dir = str(Path(cache_dir()).resolve())
     demos = lfd.load_demos(args.demos)

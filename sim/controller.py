@@ -21,8 +21,8 @@ qdot = IK(q, twist) (``robots.DifferentialIK``), then the actuator command:
   (tests/test_control_step.py).
 
 Fast path (``fast_command``): twist, the DLS solve (Cholesky fast path of ``robots.ik.dls``) and the
-actuator command are one compiled numba function (``_kernel``, compiled once per machine, cached
-beside this file); it hands back to the Python path (``twist`` / ``solve_ik`` / ``actuate``, same
+actuator command are one compiled numba function (``sim._control_kernel.kernel``, compiled once per
+machine, cached beside that file); it hands back to the Python path (``twist`` / ``solve_ik`` / ``actuate``, same
 results) whenever the DLS fast path does not apply (near a singularity or a joint limit, tool
 orientation error near pi) and for the ``pink`` IK or custom IK rows.
 
@@ -39,139 +39,25 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
+from robots import ACTUATIONS as ACTUATIONS  # re-exported: the actuations a robot is loaded with
 from robots import DifferentialIK, RobotModel
 from sim.errors import SimError
 from sim.placement import Placement
 
-ACTUATIONS: tuple[str, ...] = ("position", "torque")
 DYNAMICS: tuple[str, ...] = ("mujoco", "pinocchio")
 
-# layout of the kernel's parameter vector: _HEADER scalars, then Rref (9), k_n n (3), n (3), s A (3 d),
-# then q_home, mid, fast_half, damping, lead, dof address (n each)
+# the kernel's parameter vector starts with _HEADER scalars (layout: ``sim._control_kernel``)
 _HEADER = 16
 _KERNEL: Any = None
 
 
-def _compile() -> Any:
-    import numba
-
-    @numba.njit(cache=True, fastmath=False, nogil=True)
-    def kernel(jac: np.ndarray, p: np.ndarray, rot: np.ndarray, v: np.ndarray, q: np.ndarray,
-               qvel: np.ndarray, bias: np.ndarray, qprev: np.ndarray, prm: np.ndarray,
-               out: np.ndarray) -> int:  # pragma: no cover - compiled
-        """Twist + DLS fast path + actuator command; see ``FieldController.fast_command``.
-        Returns 0 (done: out holds qdot_ref (n), a (nv, torque) and the command's base (n)), else the
-        reason to take the Python path (1: rotation near pi, 2: near a singularity, 3: near a limit)."""
-        plane, spatial, n_o, kr = prm[0] != 0.0, prm[1] != 0.0, prm[2], prm[3]
-        eps2, fast_speed2, c_ref, inv_dt, kd, kp = prm[4], prm[5], prm[6], prm[7], prm[8], prm[9]
-        torque = prm[10] != 0.0
-        d, n, nv, m = int(prm[11]), int(prm[12]), int(prm[13]), int(prm[14])
-        o = _HEADER
-        rref = prm[o:o + 9]
-        knn = prm[o + 9:o + 12]
-        nrm = prm[o + 12:o + 15]
-        o += 15
-        sa = prm[o:o + 3 * d]
-        o += 3 * d
-        qh, mid, half = prm[o:o + n], prm[o + n:o + 2 * n], prm[o + 2 * n:o + 3 * n]
-        damp, lead, dadr = prm[o + 3 * n:o + 4 * n], prm[o + 4 * n:o + 5 * n], prm[o + 5 * n:o + 6 * n]
-        tw = np.zeros(6)
-        for i in range(3):
-            acc = 0.0
-            for j in range(d):
-                acc += sa[i * d + j] * v[j]
-            tw[i] = acc
-        if plane:
-            e = nrm[0] * p[0] + nrm[1] * p[1] + nrm[2] * p[2] - n_o
-            for i in range(3):
-                tw[i] -= knn[i] * e
-        if spatial:
-            # E = Rref R^T; w = k_r log3(E)
-            e_ = np.empty((3, 3))
-            for i in range(3):
-                for j in range(3):
-                    e_[i, j] = rref[3 * i] * rot[j, 0] + rref[3 * i + 1] * rot[j, 1] + rref[3 * i + 2] * rot[j, 2]
-            wx, wy, wz = e_[2, 1] - e_[1, 2], e_[0, 2] - e_[2, 0], e_[1, 0] - e_[0, 1]
-            c = 0.5 * (e_[0, 0] + e_[1, 1] + e_[2, 2] - 1.0)
-            sn = 0.5 * np.sqrt(wx * wx + wy * wy + wz * wz)
-            if c < 0.0 and sn < 1e-3:
-                return 1
-            th = np.arctan2(sn, c)
-            f = 0.5 * (1.0 + th * th / 6.0) if sn < 1e-6 else 0.5 * th / sn
-            tw[3], tw[4], tw[5] = kr * f * wx, kr * f * wy, kr * f * wz
-        # DLS: qdot = z + J^T (J J^T)^-1 (v - J z), J = jac[:m]; valid if J J^T - eps^2 I > 0
-        z = np.empty(n)
-        for k in range(n):
-            z[k] = kp * (qh[k] - q[k])
-        jjt = np.empty((m, m))
-        rhs = np.empty(m)
-        for i in range(m):
-            acc = 0.0
-            for k in range(n):
-                acc += jac[i, k] * z[k]
-            rhs[i] = tw[i] - acc
-            for j in range(i + 1):
-                acc = 0.0
-                for k in range(n):
-                    acc += jac[i, k] * jac[j, k]
-                jjt[i, j] = acc
-                jjt[j, i] = acc
-        low = np.zeros((m, m))
-        for shift in (eps2, 0.0):   # Cholesky of J J^T - eps^2 I (the test), then of J J^T (the solve)
-            for j in range(m):
-                acc = jjt[j, j] - shift
-                for k in range(j):
-                    acc -= low[j, k] * low[j, k]
-                if not acc > 0.0:
-                    return 2
-                low[j, j] = np.sqrt(acc)
-                for i in range(j + 1, m):
-                    acc = jjt[i, j]
-                    for k in range(j):
-                        acc -= low[i, k] * low[j, k]
-                    low[i, j] = acc / low[j, j]
-        y = np.empty(m)
-        for i in range(m):
-            acc = rhs[i]
-            for k in range(i):
-                acc -= low[i, k] * y[k]
-            y[i] = acc / low[i, i]
-        for i in range(m - 1, -1, -1):
-            acc = y[i]
-            for k in range(i + 1, m):
-                acc -= low[k, i] * y[k]
-            y[i] = acc / low[i, i]
-        speed2 = 0.0
-        for k in range(n):
-            acc = z[k]
-            for i in range(m):
-                acc += y[i] * jac[i, k]
-            out[k] = acc
-            speed2 += acc * acc
-            if abs(q[k] - mid[k]) > half[k]:
-                return 3
-        if speed2 > fast_speed2:
-            return 3
-        if torque:
-            for i in range(nv):
-                out[n + i] = 0.0
-            for k in range(n):
-                dof = int(dadr[k])
-                out[n + dof] = c_ref * out[k] - inv_dt * qprev[k] - kd * qvel[dof]
-                out[n + nv + k] = bias[dof] + damp[k] * qvel[dof]
-                qprev[k] = out[k]
-        else:
-            for k in range(n):
-                out[n + nv + k] = q[k] + lead[k] * out[k]
-        return 0
-
-    return kernel
-
-
 def _get_kernel() -> Any:
+    """The compiled control step (``sim._control_kernel.kernel``; numba is imported on first use)."""
     global _KERNEL
     if _KERNEL is None:
-        _KERNEL = _compile()
+        from sim._control_kernel import kernel
+
+        _KERNEL = kernel
     return _KERNEL
 
 
@@ -184,96 +70,109 @@ class Gains:
     torque_kd: float = 150.0
 
 
-def actuation_of(robot: RobotModel, model: mujoco.MjModel | None = None) -> str:
-    """``position`` if every arm actuator is a servo (affine bias), ``torque`` if none is."""
-    model = robot.mj_model if model is None else model
-    servo = model.actuator_biastype[robot.mj_actuator_ids] == mujoco.mjtBias.mjBIAS_AFFINE
-    if servo.any() != servo.all():
-        raise SimError(f"robot '{robot.name}' mixes position servos and motors on its arm joints")
-    return "position" if servo.all() else "torque"
-
-
 class FieldController:
     """Maps a task velocity to actuator commands for ``robot`` placed by ``placement``.
 
     Call ``measure(q)`` (Pinocchio FK at the measured joints; returns the tool position p,
     shape (3,)) and then ``command(q, qdot, v)`` with the task velocity v, shape (d,), at the
     same q; it returns the actuator controls, shape (n,), in ``robot.mj_actuator_ids`` order.
+
+    Parameters
+    ----------
+    robot : RobotModel
+        The arm; its actuation (``RobotModel.actuation``, set by ``robots.load_robot``) selects the command.
+    placement : Placement
+        Task space -> world.
+    control_dt : float
+        Control period, s.
+    ik : str
+        Differential IK back-end (``robots.IK_BACKENDS``).
+    rotation_ref : ndarray, shape (3, 3), optional
+        Tool orientation to hold on a spatial arm (default: the one at ``reset``).
+    gains : Gains
+    feedforward : bool
+        Position servos: the velocity feed-forward (module docstring).
+    mj_model : mujoco.MjModel, optional
+        The simulated model (default ``robot.mj_model``; e.g. a scene with obstacles).
+    dynamics : str
+        Computed torque from ``"mujoco"`` (default) or ``"pinocchio"`` (module docstring).
     """
 
     def __init__(self, robot: RobotModel, placement: Placement, control_dt: float, ik: str = "dls",
-                 actuation: str | None = None, rotation_ref: np.ndarray | None = None,
-                 gains: Gains = Gains(), feedforward: bool = True,
+                 rotation_ref: np.ndarray | None = None, gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, dynamics: str = "mujoco") -> None:
         model = robot.mj_model if mj_model is None else mj_model
         if dynamics not in DYNAMICS:
             raise SimError(f"unknown inverse dynamics '{dynamics}'; known: {', '.join(DYNAMICS)}")
-        self.dynamics = dynamics
-        found = actuation_of(robot, model)
-        if actuation is None:
-            actuation = found
-        if actuation not in ACTUATIONS:
-            raise SimError(f"unknown actuation '{actuation}'; known: {', '.join(ACTUATIONS)}")
-        if actuation != found:
-            raise SimError(f"actuation '{actuation}' needs the robot loaded with actuation='{actuation}'")
         if robot.planar and placement.dim != 2:
             raise SimError(f"robot '{robot.name}' moves in a plane; it cannot follow a {placement.dim}-D field")
-        self.robot, self.placement, self.dt = robot, placement, float(control_dt)
-        self.actuation, self.gains, self.feedforward = actuation, gains, feedforward
-        rows = (0, 1) if robot.planar else None
-        self.ik = DifferentialIK(robot, backend=ik, rows=rows)
+        self.robot, self.placement, self.dt, self.dynamics = robot, placement, float(control_dt), dynamics
+        self.actuation, self.gains, self.feedforward = robot.actuation, gains, feedforward
+        self.ik = DifferentialIK(robot, backend=ik, rows=(0, 1) if robot.planar else None)
         self.kin = self.ik.kinematics
         self._pass_kin = ik == "dls"
+        self.rotation_ref = None if rotation_ref is None else np.asarray(rotation_ref, dtype=np.float64).copy()
+        self._twist = np.zeros(6)
+        self._qdot_prev = np.zeros(robot.n)
+        self._setup_geometry(placement, gains)
+        self._setup_actuation(model, gains, feedforward)
+        self._setup_fast_path(model, ik)
+
+    def _setup_geometry(self, placement: Placement, gains: Gains) -> None:
+        """The twist's constants: o (3,), s A (3, d), A^T / s (d, 3), k_n n and n (3,), n . o, k_r."""
         self._origin = placement.origin.copy()
         self._sA = np.ascontiguousarray(placement.scale * placement.axes)        # (3, d)
         self._At_s = np.ascontiguousarray(placement.axes.T / placement.scale)     # (d, 3)
-        self._plane = placement.dim == 2 and not robot.planar
-        self._spatial = not robot.planar
+        self._plane = placement.dim == 2 and not self.robot.planar
+        self._spatial = not self.robot.planar
         self._kn_n = gains.plane * placement.normal
         self._normal = placement.normal.copy()
         self._n_o = float(placement.normal @ placement.origin)
         self._kr = float(gains.rotation)
-        self.rotation_ref = None if rotation_ref is None else np.asarray(rotation_ref, dtype=np.float64).copy()
-        self._twist = np.zeros(6)
-        dofs = robot.mj_dof_adr
-        self._damping = model.dof_damping[dofs].copy()
-        acts = robot.mj_actuator_ids
-        if actuation == "position":
+
+    def _setup_actuation(self, model: mujoco.MjModel, gains: Gains, feedforward: bool) -> None:
+        """The command's constants (module docstring): the joints' damping b (n,); position servos:
+        the lead (kv + b) / kp or dt (n,); computed torque: Pinocchio's model and data, k_d, 1/dt, c_ref."""
+        robot = self.robot
+        self._torque = self.actuation == "torque"
+        self._damping = model.dof_damping[robot.mj_dof_adr].copy()
+        if not self._torque:
+            acts = robot.mj_actuator_ids
             kp = model.actuator_gainprm[acts, 0].copy()
             kv = -model.actuator_biasprm[acts, 2].copy()
-            if (kp <= 0).any():
-                raise SimError(f"robot '{robot.name}' has no position servos (load it with actuation='position')")
             self._lead = (kv + self._damping) / kp if feedforward else np.full(len(kp), self.dt)
-        else:
-            self._pin_model = robot.pin_model
-            self._pin_data = robot.pin_model.createData()
-            self._kd, self._inv_dt = float(gains.torque_kd), 1.0 / self.dt
-            self._c_ref = self._inv_dt + self._kd
-        self._qdot_prev = np.zeros(robot.n)
-        # the fused fast path (module docstring): only for the dls IK with rows 0..m-1
-        nv = model.nv
-        self.uses_mj_dynamics = actuation == "torque" and dynamics == "mujoco"
+            return
+        self._pin_model = robot.pin_model
+        self._pin_data = robot.pin_model.createData()
+        self._kd, self._inv_dt = float(gains.torque_kd), 1.0 / self.dt
+        self._c_ref = self._inv_dt + self._kd
+
+    def _setup_fast_path(self, model: mujoco.MjModel, ik: str) -> None:
+        """The fused fast path (module docstring; only for the dls IK with rows 0..m-1): its output
+        buffer (2 n + nv,) with views qdot_ref (n,), a (nv,) and base (n,), M a (nv,), the packed
+        parameters and the compiled kernel."""
+        n, nv = self.robot.n, model.nv
+        self.uses_mj_dynamics = self._torque and self.dynamics == "mujoco"
         self._fast = ik == "dls" and tuple(self.ik.rows) == tuple(range(len(self.ik.rows)))
         self._nv = nv
-        self._out = np.zeros(2 * robot.n + nv)
-        self._acc_full = self._out[robot.n:robot.n + nv]
-        self._base = self._out[robot.n + nv:]
-        self._qdot_ref = self._out[:robot.n]
+        self._out = np.zeros(2 * n + nv)
+        self._acc_full = self._out[n:n + nv]
+        self._base = self._out[n + nv:]
+        self._qdot_ref = self._out[:n]
         self._macc = np.zeros(nv)
-        self._dofs = np.asarray(dofs, dtype=np.intp)
+        self._dofs = np.asarray(self.robot.mj_dof_adr, dtype=np.intp)
         lo = int(self._dofs[0])
-        contiguous = bool(np.array_equal(self._dofs, np.arange(lo, lo + robot.n)))
-        self._macc_arm: np.ndarray | None = self._macc[lo:lo + robot.n] if contiguous else None
+        contiguous = bool(np.array_equal(self._dofs, np.arange(lo, lo + n)))
+        self._macc_arm: np.ndarray | None = self._macc[lo:lo + n] if contiguous else None
         self._prm = self._pack(model) if self._fast else None
-        self._torque = actuation == "torque"
-        self._fast_ok = self._fast and (not self._torque or dynamics == "mujoco")
+        self._fast_ok = self._fast and (not self._torque or self.dynamics == "mujoco")
         self._kernel: Any = _get_kernel() if self._fast_ok else None
         self._data: mujoco.MjData | None = None
-        self._site = int(model.site(robot.mj_ee_site).id)
+        self._site = int(model.site(self.robot.mj_ee_site).id)
         self._from_site = False
 
     def _pack(self, model: mujoco.MjModel) -> np.ndarray:
-        """The kernel's parameter vector, shape (_HEADER + 15 + 3 d + 6 n,) (layout at ``_HEADER``)."""
+        """The kernel's parameter vector, shape (_HEADER + 15 + 3 d + 6 n,) (layout: ``sim._control_kernel``)."""
         fp = self.ik._impl.fast_params(self.dt)
         n, d = self.robot.n, self.placement.dim
         torque = self.actuation == "torque"

@@ -27,7 +27,7 @@ from lfd import DemoSet, VelocityField
 from lfd.integrate import rk4, rk4_phase
 from robots import Kinematics, RobotModel
 from sim.camera import CameraSpec
-from sim.controller import Gains, actuation_of
+from sim.controller import Gains
 from sim.errors import SimError
 from sim.metrics import RECOVERY_TOLERANCE_M, recovery_time, run_metrics
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
@@ -67,10 +67,26 @@ def has_phase(field: VelocityField) -> TypeGuard[TrackingField]:
 
 @dataclass
 class RunResult:
-    """A scored run: ``reference`` (K+1, 3) is the unperturbed field rollout mapped to world;
-    ``unperturbed`` (K+1, 3) the measured tool path of the same run without its push or hold
-    (None when it had neither); ``command`` (K+1, d) the field's command v = f(x - dg) at each
-    measured position, task units per second."""
+    """A scored run.
+
+    Attributes
+    ----------
+    learner, scenario : str
+        The field's learner and the scenario's name (``SCENARIOS``, or a caller's own label).
+    rollout : Rollout
+        The measured run (``sim.rollout.Rollout``).
+    reference : ndarray, shape (K+1, 3)
+        The unperturbed field rollout mapped to world, m.
+    metrics : dict
+        The run's scores (``sim.metrics.run_metrics`` and more, see ``Experiment.run``).
+    unperturbed : ndarray, shape (K+1, 3), or None
+        The measured tool path of the same run without its push or hold (None when it had neither).
+    command : ndarray, shape (K+1, d), or None
+        The field's command v = f(x - dg) at each measured position, task units per second.
+    perturbations : tuple of Perturbation (and ``Hold``)
+        The perturbation objects the run was made with, exactly as given to ``Experiment.run``
+        (or those of the named scenario): ``p.describe()`` for the metrics JSON.
+    """
 
     learner: str
     scenario: str
@@ -79,14 +95,33 @@ class RunResult:
     metrics: dict[str, Any]
     unperturbed: np.ndarray | None = None
     command: np.ndarray | None = None
+    perturbations: tuple[Perturbation | Hold, ...] = ()
 
 
 class Experiment:
-    """Runs fields on ``robot`` for the demos ``demos`` (see module docstring)."""
+    """Runs fields on ``robot`` for the demos ``demos`` (see module docstring).
+
+    Parameters
+    ----------
+    robot : RobotModel
+        The arm; the actuation is the robot's (``robots.load_robot(..., actuation=...)``,
+        ``RobotModel.actuation``).
+    demos : DemoSet
+        The demonstrations, shape (N, T, d).
+    placement : Placement, optional
+        Task space -> world (default ``Placement.auto`` with ``plane`` and ``size_m``).
+    demo_index : int
+        The demo whose start and duration the runs take.
+    control_hz, ik, gains, feedforward : as ``sim.make_environment``.
+    settle_s : float
+        Run time after the demo's duration, s.
+    fps : float
+        Rate at which the rollouts keep the full qpos for video, frames per simulated second.
+    """
 
     def __init__(self, robot: RobotModel, demos: DemoSet, *, placement: Placement | None = None,
                  plane: str = "auto", size_m: float | None = None, demo_index: int = 0,
-                 control_hz: float = 500.0, ik: str = "dls", actuation: str | None = None,
+                 control_hz: float = 500.0, ik: str = "dls",
                  settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True,
                  fps: float = FPS) -> None:
         self.robot, self.demos = robot, demos
@@ -104,8 +139,7 @@ class Experiment:
         self.demo_world = self.placement.to_world(demos.x[demo_index])
         self.start = demos.x[demo_index, 0].copy()
         self.duration_s = float(self.demo_t[-1]) + settle_s
-        self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, actuation=actuation or actuation_of(robot),
-                                            gains=gains, feedforward=feedforward)
+        self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, gains=gains, feedforward=feedforward)
         self.physics = ArmPhysics.from_robot(robot)
         self.base = base_position(robot)
         self.fps = float(fps)   # the rollouts record the full qpos at this video frame rate
@@ -120,7 +154,7 @@ class Experiment:
         env = make_environment(self.robot, self.placement, self.start, field.goal,
                                duration_s=self.duration_s, perturbations=rest,
                                rotation_ref=self.rotation_ref, physics=self.physics, **self.options)
-        fn: Callable[[np.ndarray], np.ndarray] = field.point_fn()
+        fn: Callable[[np.ndarray], np.ndarray] = field.single_point_evaluator()
         if has_phase(field):
             start = env.task.start_task - env.task.schedule.goal_offset_task
             fn = PhaseLoop(field, env.task.control_dt, start)
@@ -134,7 +168,7 @@ class Experiment:
         if has_phase(field):
             x, _ = rk4_phase(field.phase_point_fn(x0 - shift), x0 - shift, rollout.t)
             return self.placement.to_world(x + shift)
-        return self.placement.to_world(rk4(field.point_fn(), x0 - shift, rollout.t) + shift)
+        return self.placement.to_world(rk4(field.single_point_evaluator(), x0 - shift, rollout.t) + shift)
 
     def run(self, field: VelocityField, name: str, perturbations: tuple[Perturbation, ...] | None = None,
             seed: int = 0, progress: bool = False) -> RunResult:
@@ -160,19 +194,20 @@ class Experiment:
         if ro.phase is not None:
             free_phase = None if window is None or cached is None else cached[2]
             metrics.update(self.phase_metrics(field, ro, window, free_phase))
-        return RunResult(field.learner, name, ro, ref, metrics, unperturbed, self.command(field, ro))
+        return RunResult(field.learner, name, ro, ref, metrics, unperturbed, ro.command, tuple(perts))
 
     def command(self, field: VelocityField, ro: Rollout) -> np.ndarray:
         """The field's command at every control step, shape (K+1, d), task units per second:
         v_k = f(x_k - dg) at the measured x_k (at the recorded phase s_k for a phase field),
-        recomputed from the recorded states (what the loop fed the controller, before IK)."""
+        recomputed from the recorded states: a check of ``Rollout.command``, which the loop records
+        as it feeds the controller (before IK)."""
         shift = ro.goal_task - np.asarray(field.goal)
         x = self.placement.to_task(ro.ee) - shift
         if has_phase(field) and ro.phase is not None:
             start = ro.start_task - shift
             phase_fn = field.phase_point_fn(start)
             return np.array([phase_fn(xk, float(sk))[0] for xk, sk in zip(x, ro.phase)])
-        fn = field.point_fn()
+        fn = field.single_point_evaluator()
         return np.array([fn(xk) for xk in x])
 
     def phase_metrics(self, field: VelocityField, ro: Rollout, window: tuple[float, float] | None,
@@ -215,4 +250,4 @@ class Experiment:
         opts = dict(self.options, gains=dataclasses.asdict(self.options["gains"]))
         return {"robot": self.robot.name, "ee_frame": self.robot.ee_frame, "demos": self.demos.name,
                 "demo_index": self.demo_index, "duration_s": self.duration_s,
-                "placement": self.placement.to_dict(), **opts}
+                "placement": self.placement.to_dict(), "actuation": self.robot.actuation, **opts}

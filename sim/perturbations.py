@@ -15,7 +15,7 @@ perturbations into the arrays the control loop reads, so the loop itself draws n
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -49,51 +49,58 @@ class Perturbation:
 
 
 @dataclass(frozen=True)
-class StartOffset(Perturbation):
-    """Start ``distance_m`` (m) from the demonstration's start, along ``direction`` (world) or a
-    seeded random direction."""
+class _Directed(Perturbation):
+    """A perturbation along a world direction: ``direction`` (normalised), or, when None, one drawn
+    from ``seed`` (module docstring). Both are keyword-only."""
+
+    direction: tuple[float, float, float] | None = field(default=None, kw_only=True)
+    seed: int = field(default=0, kw_only=True)
+
+    def unit_world(self, placement: Placement) -> np.ndarray:
+        """The unit direction u, shape (3,), world."""
+        return _direction(self.direction, self.seed, placement)
+
+
+@dataclass(frozen=True)
+class StartOffset(_Directed):
+    """Start ``distance_m`` (m) from the demonstration's start, along ``direction`` (world, shape (3,))
+    or a direction drawn from ``seed``."""
 
     distance_m: float = 0.02
-    direction: tuple[float, float, float] | None = None
-    seed: int = 0
     kind = "offset"
 
     def offset_world(self, placement: Placement) -> np.ndarray:
         """The start displacement dp, shape (3,), in metres."""
-        return self.distance_m * _direction(self.direction, self.seed, placement)
+        return self.distance_m * self.unit_world(placement)
 
 
 @dataclass(frozen=True)
-class Push(Perturbation):
-    """Force ``force_n`` (N) along ``direction`` (world; default seeded random) on MuJoCo body
-    ``body`` (default: the body carrying the tool site) during [start_s, start_s + duration_s)."""
+class Push(_Directed):
+    """Force ``force_n`` (N) along ``direction`` (world, shape (3,); default: drawn from ``seed``) on
+    MuJoCo body ``body`` (default: the body carrying the tool site) during [start_s, start_s + duration_s).
+    The control loop records what it applied at each step (``sim.rollout.Rollout.applied_force``)."""
 
     force_n: float = 20.0
     duration_s: float = 0.2
     start_s: float = 1.0
-    direction: tuple[float, float, float] | None = None
     body: str | None = None
-    seed: int = 0
     kind = "push"
 
     def force_world(self, placement: Placement) -> np.ndarray:
         """The force vector F, shape (3,), in N."""
-        return self.force_n * _direction(self.direction, self.seed, placement)
+        return self.force_n * self.unit_world(placement)
 
 
 @dataclass(frozen=True)
-class GoalShift(Perturbation):
-    """Move the goal by ``distance_m`` (m) along ``direction`` (world) or a seeded random one."""
+class GoalShift(_Directed):
+    """Move the goal by ``distance_m`` (m) along ``direction`` (world, shape (3,)) or one drawn from ``seed``."""
 
     distance_m: float = 0.02
-    direction: tuple[float, float, float] | None = None
-    seed: int = 0
     kind = "goal"
 
     def offset_world(self, placement: Placement) -> np.ndarray:
         """The goal displacement dg, shape (3,), in metres (projected on the task plane when d = 2)."""
-        u = _direction(self.direction, self.seed, placement)
-        return self.distance_m * placement.axes @ (placement.axes.T @ u)
+        return self.distance_m * placement.axes @ (placement.axes.T @ self.unit_world(placement))
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,10 @@ Every control step k (t_k = k dt):
    a NaN/unstable state or a bad control (MuJoCo warnings mjWARN_BADQPOS/QVEL/QACC/CTRL)
    raises ``SimulationError``.
 
-States are recorded at every control step; full ``qpos`` at the video frame times only.
+The loop itself records, at every control step, q, qdot (as read in step 1), the tool position p,
+the field's command v (step 3) and the external force that ``xfrc_applied`` holds on the push body
+after step 5 (what the push actually applied during the step); full ``qpos`` at the video frame
+times only.
 """
 
 from __future__ import annotations
@@ -55,22 +58,55 @@ _DIVERGENCE = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVE
 
 @dataclass
 class Rollout:
-    """One closed-loop run.
+    """One closed-loop run (K control steps, n arm joints, d task dimensions, F video frames).
 
-    t : (K+1,) s; ee : (K+1, 3) measured tool positions (world, m); q : (K+1, n) joint positions;
-    frame_t : (F,) video frame times; frame_qpos : (F, nq) MuJoCo qpos at those times;
-    step_time_s : (K,) wall time of each control step (controller + perturbations + physics);
-    wall_s : the loop's wall time; start_task, goal_task : (d,) actual start and (shifted) goal,
-    task units; goal_world : (3,); push_window_s : (t0, t1) or None; push_force : (3,) N or None;
-    push_body : MuJoCo body id (-1: none); ik_limit_hits : IK solves that clamped to a limit;
-    joint_limit_violations : control steps with an arm joint outside [q_min, q_max] in MuJoCo;
-    phase : (K+1,) the phase s of a ``PhaseLoop`` at each step, else None; hold_window_s : (t0, t1) or None;
-    cpu_s : the loop's CPU time (this thread; ``time.thread_time``), which machine load does not inflate.
+    Attributes
+    ----------
+    t : ndarray, shape (K+1,)
+        Time of each control step, s.
+    ee : ndarray, shape (K+1, 3)
+        Measured tool positions, world, m.
+    q, qdot : ndarray, shape (K+1, n)
+        Joint positions and velocities, read from MuJoCo by the loop at each step (qdot before
+        any joint-velocity noise of that step).
+    command : ndarray, shape (K+1, d)
+        The field's command v = f(x - dg) the loop fed the controller at each step, task units per
+        second (the last row: the field at the final state, which no step follows).
+    applied_force : ndarray, shape (K+1, 3)
+        The external force, world, N, that ``xfrc_applied`` held on the push body during step k
+        (read back by the loop after the step's perturbations; zero without a push and in the
+        last row).
+    frame_t, frame_qpos : ndarray, shape (F,) and (F, nq)
+        Video frame times and MuJoCo's full qpos at those times.
+    step_time_s : ndarray, shape (K,)
+        Wall time of each control step (controller + perturbations + physics), s.
+    wall_s : float
+        The loop's wall time, s.
+    start_task, goal_task : ndarray, shape (d,)
+        Actual start and (shifted) goal, task units.
+    goal_world : ndarray, shape (3,)
+    push_window_s : (t0, t1) or None
+    push_force : ndarray, shape (3,), or None
+        The push's force vector, N (``applied_force`` holds it step by step).
+    push_body : int
+        MuJoCo body id of the push (-1: none).
+    ik_limit_hits : int
+        IK solves that clamped to a limit.
+    joint_limit_violations : int
+        Control steps with an arm joint outside [q_min, q_max] in MuJoCo.
+    phase : ndarray, shape (K+1,), or None
+        The phase s of a ``PhaseLoop`` at each step.
+    hold_window_s : (t0, t1) or None
+    cpu_s : float or None
+        The loop's CPU time (this thread; ``time.thread_time``), which machine load does not inflate.
     """
 
     t: np.ndarray
     ee: np.ndarray
     q: np.ndarray
+    qdot: np.ndarray
+    command: np.ndarray
+    applied_force: np.ndarray
     frame_t: np.ndarray
     frame_qpos: np.ndarray
     step_time_s: np.ndarray
@@ -134,120 +170,168 @@ class PhaseLoop:
         self.s = min(1.0, self.s + self.dt * sdot)
         return v
 
+    def peek(self, x: np.ndarray) -> np.ndarray:
+        """dx/dt, shape (d,), at x, shape (d,), and the current phase, without advancing or recording it."""
+        return self.fn(x, self.s)[0]
+
 
 def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarray],
             fps: float = FPS, progress: bool = False, desc: str = "rollout",
             hold: Hold | None = None) -> Rollout:
-    """Reset ``env`` and run one episode with the velocity field ``field_fn`` : x (d,) -> v (d,)
-    (task units), evaluated at the measured tool position every control step (a ``PhaseLoop``
-    carries its phase; the Rollout then records it). ``hold``: clamp the arm in that window."""
+    """Reset ``env`` and run one episode (module docstring) with a velocity field.
+
+    Parameters
+    ----------
+    env : dm_control Environment
+        From ``sim.make_environment`` (its task a ``FieldTrackingTask``).
+    field_fn : callable, x (d,) -> v (d,)
+        The field in task units, evaluated at the measured tool position every control step (a
+        ``PhaseLoop`` carries its phase; the Rollout then records it).
+    fps : float
+        Rate at which the full qpos is kept for video, frames per simulated second.
+    progress, desc : a progress bar and its label.
+    hold : Hold, optional
+        Clamp the arm in that window.
+
+    Returns
+    -------
+    Rollout
+        The recorded run; ``SimulationError`` if the simulation diverged.
+    """
     task: FieldTrackingTask = env.task
-    physics = env.physics
     env.reset()
-    m, d = physics.model.ptr, physics.data.ptr
-    n_sub = int(round(task.control_dt / m.opt.timestep))
-    ctl = task.controller
-    robot = task.robot
-    qadr, dadr = robot.mj_qpos_adr, robot.mj_dof_adr
-    K, dt = task.n_steps, task.control_dt
-    shift = task.schedule.goal_offset_task
-    shifted = bool(np.any(shift != 0))
-    rec = _Record.allocate(K, dt, robot.n, m.nq, fps)
-    fsteps, Q, P, FQ, steps = rec.frame_steps, rec.q, rec.ee, rec.frame_qpos, rec.step_s
-    warn = d.warning.number
-    bad = [int(w) for w in _DIVERGENCE]
-    hits0 = getattr(ctl.ik, "limit_hits", 0)
+    m, d = env.physics.model.ptr, env.physics.data.ptr
+    rec = _Record.allocate(task.n_steps, task.control_dt, task.robot.n, m.nq, task.placement.dim, fps)
+    hits0 = getattr(task.controller.ik, "limit_hits", 0)
+    dt = task.control_dt
+    h0, h1 = (-1, -1) if hold is None else (int(round(hold.start_s / dt)),
+                                             int(round((hold.start_s + hold.duration_s) / dt)))
     messages: list[str] = []
     prev_handler = mujoco.get_mju_user_warning()
     mujoco.set_mju_user_warning(messages.append)
-    j, next_frame = 0, int(fsteps[0])
-    h0, h1 = (-1, -1) if hold is None else (int(round(hold.start_s / dt)),
-                                             int(round((hold.start_s + hold.duration_s) / dt)))
-    q_hold = None
-    bar = tqdm(total=K, desc=desc, disable=not progress, unit="step", leave=False, mininterval=0.5)
-    clock = time.perf_counter
-    split = ctl.uses_mj_dynamics
-    step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
-    ctl.bind(d)
-    # after mj_step1 the tool pose is MuJoCo's (Pinocchio computes the IK's Jacobian); else Pinocchio FK
-    measure, to_task, apply = (ctl.measure_site if split else ctl.measure), ctl.to_task, task.apply
-    qpos = d.qpos          # one view for the whole loop (each attribute access builds a new one)
+    bar = tqdm(total=task.n_steps, desc=desc, disable=not progress, unit="step", leave=False, mininterval=0.5)
     try:
-        cpu0 = time.thread_time()
-        start = clock()
-        for k in range(K):
-            t0 = clock()
-            if split:
-                step1(m, d)
-            q = qpos[qadr]
-            p = measure(q)
-            Q[k] = q
-            P[k] = p
-            if k == next_frame:
-                FQ[j] = qpos
-                j += 1
-                next_frame = int(fsteps[j]) if j < len(fsteps) else -1
-            x = to_task(p)
-            apply(d, q, None, field_fn(x - shift) if shifted else field_fn(x), m)
-            if split:
-                step2(m, d)
-                if n_sub > 1:
-                    step(m, d, n_sub - 1)
-            else:
-                step(m, d, n_sub)
-            if h0 <= k < h1:
-                if q_hold is None:
-                    q_hold = Q[h0].copy()
-                d.qpos[qadr] = q_hold
-                d.qvel[dadr] = 0.0
-                mujoco.mj_forward(m, d)
-            if warn[bad[0]] or warn[bad[1]] or warn[bad[2]] or warn[bad[3]]:
-                raise SimulationError(_divergence_message(d, k, dt, bad))
-            steps[k] = clock() - t0
-            if k % 250 == 249:
-                bar.update(250)
-        wall = clock() - start
-        cpu = time.thread_time() - cpu0
+        wall, cpu, j = _loop(task, m, d, field_fn, rec, h0, h1, bar)
     finally:
         mujoco.set_mju_user_warning(prev_handler)
         bar.close()
     if messages:  # MuJoCo's other warnings (e.g. too many contacts): said once, not swallowed
         warnings.warn(f"MuJoCo warned {len(messages)} time(s) during the rollout: {messages[0].strip()}",
                       RuntimeWarning, stacklevel=2)
-    q = d.qpos[qadr]
-    Q[K] = q
-    P[K] = ctl.measure(q)
-    if j < len(fsteps):
-        FQ[j:] = d.qpos
-    return _to_rollout(rec, task, field_fn, wall, cpu, int(getattr(ctl.ik, "limit_hits", 0) - hits0),
+    _record_final(task, d, field_fn, rec, j)
+    return _to_rollout(rec, task, field_fn, wall, cpu, int(getattr(task.controller.ik, "limit_hits", 0) - hits0),
                        None if hold is None else (h0 * dt, h1 * dt))
+
+
+def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn: Callable[[np.ndarray], np.ndarray],
+          rec: _Record, h0: int, h1: int, bar: Any) -> tuple[float, float, int]:
+    """The K control steps of ``execute`` (module docstring), written into ``rec``; the arm is held
+    in steps [h0, h1). Returns (wall s, CPU s, video frames written)."""
+    n_sub = int(round(task.control_dt / m.opt.timestep))
+    ctl, qadr, dadr = task.controller, task.robot.mj_qpos_adr, task.robot.mj_dof_adr
+    K, dt, shift = task.n_steps, task.control_dt, task.schedule.goal_offset_task
+    shifted = bool(np.any(shift != 0))
+    fsteps, Q, Qd, P, V, F, FQ, steps = rec.frame_steps, rec.q, rec.qdot, rec.ee, rec.command, rec.force, \
+        rec.frame_qpos, rec.step_s
+    warn, bad = d.warning.number, [int(w) for w in _DIVERGENCE]
+    j, next_frame, q_hold = 0, int(fsteps[0]), None
+    clock, split = time.perf_counter, ctl.uses_mj_dynamics
+    step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
+    ctl.bind(d)
+    # after mj_step1 the tool pose is MuJoCo's (Pinocchio computes the IK's Jacobian); else Pinocchio FK
+    measure, to_task, apply = (ctl.measure_site if split else ctl.measure), ctl.to_task, task.apply
+    qpos, qvel = d.qpos, d.qvel   # one view each for the whole loop (each attribute access builds a new one)
+    lo = int(dadr[0])               # the arm's qvel as one view when its dofs are contiguous (cheaper to copy)
+    qvel_arm = qvel[lo:lo + len(dadr)] if np.array_equal(dadr, np.arange(lo, lo + len(dadr))) else None
+    push_body = task.schedule.push_body
+    force = d.xfrc_applied[max(push_body, 0), :3]   # the push body's applied force (a view)
+    cpu0 = time.thread_time()
+    start = clock()
+    for k in range(K):
+        t0 = clock()
+        if split:
+            step1(m, d)
+        q = qpos[qadr]
+        p = measure(q)
+        Q[k] = q
+        Qd[k] = qvel[dadr] if qvel_arm is None else qvel_arm
+        P[k] = p
+        if k == next_frame:
+            FQ[j] = qpos
+            j += 1
+            next_frame = int(fsteps[j]) if j < len(fsteps) else -1
+        x = to_task(p)
+        v = V[k] = field_fn(x - shift) if shifted else field_fn(x)
+        apply(d, q, None, v, m)
+        if push_body >= 0:
+            F[k] = force
+        if split:
+            step2(m, d)
+            if n_sub > 1:
+                step(m, d, n_sub - 1)
+        else:
+            step(m, d, n_sub)
+        if h0 <= k < h1:
+            if q_hold is None:
+                q_hold = Q[h0].copy()
+            qpos[qadr] = q_hold
+            qvel[dadr] = 0.0
+            mujoco.mj_forward(m, d)
+        if warn[bad[0]] or warn[bad[1]] or warn[bad[2]] or warn[bad[3]]:
+            raise SimulationError(_divergence_message(d, k, dt, bad))
+        steps[k] = clock() - t0
+        if k % 250 == 249:
+            bar.update(250)
+    return clock() - start, time.thread_time() - cpu0, j
+
+
+def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[[np.ndarray], np.ndarray],
+                  rec: _Record, j: int) -> None:
+    """Row K of the record: the state after the last step, the field's command there (a
+    ``PhaseLoop`` is not advanced), and the frames not reached."""
+    ctl, K = task.controller, task.n_steps
+    q = d.qpos[task.robot.mj_qpos_adr]
+    rec.q[K] = q
+    rec.qdot[K] = d.qvel[task.robot.mj_dof_adr]
+    rec.ee[K] = ctl.measure(q)
+    x = ctl.to_task(rec.ee[K]) - task.schedule.goal_offset_task
+    if not np.isfinite(x).all():   # diverged: _to_rollout raises SimulationError
+        rec.command[K] = np.nan
+    else:
+        rec.command[K] = field_fn.peek(x) if isinstance(field_fn, PhaseLoop) else field_fn(x)
+    if j < len(rec.frame_steps):
+        rec.frame_qpos[j:] = d.qpos
 
 
 @dataclass
 class _Record:
-    """What the loop writes: q (K+1, n), ee (K+1, 3), step_s (K,), and the full qpos frame_qpos
-    (F, nq) at the video frame times frame_t (F,), i.e. at control steps frame_steps (F,)."""
+    """What the loop writes: q, qdot (K+1, n), ee (K+1, 3), command (K+1, d), force (K+1, 3),
+    step_s (K,), and the full qpos frame_qpos (F, nq) at the video frame times frame_t (F,), i.e. at
+    control steps frame_steps (F,)."""
 
     q: np.ndarray
+    qdot: np.ndarray
     ee: np.ndarray
+    command: np.ndarray
+    force: np.ndarray
     step_s: np.ndarray
     frame_t: np.ndarray
     frame_steps: np.ndarray
     frame_qpos: np.ndarray
 
     @classmethod
-    def allocate(cls, K: int, dt: float, n: int, nq: int, fps: float) -> _Record:
+    def allocate(cls, K: int, dt: float, n: int, nq: int, dim: int, fps: float) -> _Record:
         ftimes = frame_times(K * dt, fps)
         fsteps = np.minimum(np.round(ftimes / dt).astype(int), K)
-        return cls(np.empty((K + 1, n)), np.empty((K + 1, 3)), np.empty(K), ftimes, fsteps,
-                   np.empty((len(fsteps), nq)))
+        return cls(np.empty((K + 1, n)), np.empty((K + 1, n)), np.empty((K + 1, 3)), np.empty((K + 1, dim)),
+                   np.zeros((K + 1, 3)), np.empty(K), ftimes, fsteps, np.empty((len(fsteps), nq)))
 
 
 def _to_rollout(rec: _Record, task: FieldTrackingTask, field_fn: Callable[[np.ndarray], np.ndarray], wall: float,
                 cpu: float, ik_limit_hits: int, hold_window: tuple[float, float] | None) -> Rollout:
     """The Rollout of a finished loop (``SimulationError`` if its state went non-finite)."""
     robot, K, dt = task.robot, task.n_steps, task.control_dt
-    if not (np.isfinite(rec.q).all() and np.isfinite(rec.ee).all()):
+    if not (np.isfinite(rec.q).all() and np.isfinite(rec.qdot).all() and np.isfinite(rec.ee).all()):
         raise SimulationError("simulation diverged: NaN in the joint state; no output written")
     violations = int(np.count_nonzero(np.any((rec.q < robot.q_min) | (rec.q > robot.q_max), axis=1)))
     s = task.schedule
@@ -255,7 +339,8 @@ def _to_rollout(rec: _Record, task: FieldTrackingTask, field_fn: Callable[[np.nd
     if isinstance(field_fn, PhaseLoop):
         phase = np.asarray(field_fn.trace + [field_fn.s], dtype=np.float64)
     return Rollout(
-        t=np.arange(K + 1) * dt, ee=rec.ee, q=rec.q, frame_t=rec.frame_t, frame_qpos=rec.frame_qpos,
+        t=np.arange(K + 1) * dt, ee=rec.ee, q=rec.q, qdot=rec.qdot, command=rec.command, applied_force=rec.force,
+        frame_t=rec.frame_t, frame_qpos=rec.frame_qpos,
         step_time_s=rec.step_s, wall_s=wall, start_task=task.start_task.copy(), goal_task=task.goal_task.copy(),
         goal_world=task.goal_world.copy(), push_window_s=s.push_window_s,
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,

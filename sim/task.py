@@ -124,7 +124,7 @@ class FieldTrackingTask(control.Task):
     """
 
     def __init__(self, robot: RobotModel, placement: Placement, start: np.ndarray, goal: np.ndarray,
-                 control_dt: float, duration_s: float, ik: str = "dls", actuation: str | None = None,
+                 control_dt: float, duration_s: float, ik: str = "dls",
                  perturbations: Sequence[Perturbation] = (), rotation_ref: np.ndarray | None = None,
                  gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
@@ -157,7 +157,7 @@ class FieldTrackingTask(control.Task):
             raise PlacementError(f"start point {np.round(p0, 3).tolist()} m is out of reach of "
                                  f"'{robot.name}' (missed by {err * 1e3:.1f} mm)")
         self.q_start = q0
-        self.controller = FieldController(robot, placement, control_dt, ik=ik, actuation=actuation,
+        self.controller = FieldController(robot, placement, control_dt, ik=ik,
                                           rotation_ref=rotation_ref, gains=gains, feedforward=feedforward,
                                           mj_model=model, dynamics=dynamics)
         self.step_index = 0
@@ -366,6 +366,16 @@ def _require(placement: Placement | None, start: np.ndarray | None, goal: np.nda
     return placement, start, goal
 
 
+def _robot(robot: str | RobotModel, actuation: str | None) -> RobotModel:
+    """The robot of ``make_environment``: a name loaded with ``actuation`` (default ``torque``), or a
+    loaded robot, whose own actuation ``actuation`` (if given) must be."""
+    if isinstance(robot, str):
+        return load_robot(robot, actuation=actuation or "torque")
+    if actuation is not None and actuation != robot.actuation:
+        raise SimError(f"robot '{robot.name}' was loaded with actuation='{robot.actuation}', not '{actuation}'")
+    return robot
+
+
 def make_environment(robot: str | RobotModel, placement: Placement | None = None, start: np.ndarray | None = None,
                      goal: np.ndarray | None = None, *, demos: str | DemoSet | None = None,
                      learner_field: VelocityField | None = None, seed: int | None = None,
@@ -383,9 +393,9 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
 
     Parameters
     ----------
-    robot : str or RobotModel
-        A built-in name (``planar``, ``panda``; loaded with ``actuation``, default ``torque``) or
-        a loaded robot; ``actuation`` must then be the one it was loaded with (None: whichever).
+    robot, actuation : str or RobotModel, and str or None
+        A built-in name (``planar``, ``panda``), loaded with ``actuation`` (default ``torque``), or a
+        loaded robot, which brings its own (``RobotModel.actuation``; another one: ``SimError``).
     placement, start, goal : optional
         Task space -> robot, and the start and goal, shape (d,), task units. Each defaults from
         ``demos``: ``Placement.auto`` (checked reachable), demo ``demo_index``'s first sample, and
@@ -407,8 +417,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
         Pinocchio's RNEA (``pinocchio``); see ``sim.controller``.
     Others as ``FieldTrackingTask`` and ``sim.controller.FieldController``.
     """
-    if isinstance(robot, str):
-        robot = load_robot(robot, actuation=actuation or "torque")
+    robot = _robot(robot, actuation)
     if demos is not None:
         placement, start, goal, duration_s, rotation_ref = _demo_defaults(
             robot, demos, demo_index, placement, start, goal, learner_field is not None, duration_s, settle_s,
@@ -420,9 +429,10 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
     physics = ArmPhysics.from_robot(robot) if physics is None else physics
     control_dt = _control_dt(control_hz, physics.model.opt.timestep)
     task = FieldTrackingTask(robot, placement, start, goal, control_dt, duration_s, ik=ik,
-                             actuation=actuation, perturbations=perturbations, rotation_ref=rotation_ref,
+                             perturbations=perturbations, rotation_ref=rotation_ref,
                              gains=gains, feedforward=feedforward, mj_model=physics.model.ptr,
                              start_radius=start_radius, seed=seed,
-                             field=None if learner_field is None else learner_field.point_fn(), dynamics=dynamics)
+                             field=None if learner_field is None else learner_field.single_point_evaluator(),
+                             dynamics=dynamics)
     return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
                                legacy_step=False)

@@ -27,7 +27,7 @@ CHECKED = ("tracking_rmse_m", "final_goal_error_m", "imitation_rmse_m")
 # Every option that shapes these small models is pinned, so a change of a learner's defaults does
 # not move the golden numbers (a change of its algorithm may: then regenerate, see above).
 TRAINING = {
-    "node": {"hidden": (32, 32), "iters": 150, "lr": 1e-2, "lr_final": 1e-4, "seg": 10, "seg_start": 2,
+    "node": {"hidden": (32, 32), "iterations": 150, "lr": 1e-2, "lr_final": 1e-4, "seg": 10, "seg_start": 2,
              "batch": 128, "samples": 100},
     "contraction": {"layers": 2, "hidden": 16, "iterations": 30, "rate": 0.5, "batch": 1000,
                     "traj_weight": 1.0, "traj_points": 25},

@@ -32,7 +32,7 @@ QUICK_CELLS = [f"{learner}__{shape}__seed0" for learner in ("contraction", "dmp"
 
 def test_starts_are_seeded_per_shape_and_placed_as_documented() -> None:
     demos = lasa("Angle")
-    proto = P.Protocol()
+    proto = P.LasaProtocol()
     a, b = P.starts(demos, "Angle", proto), P.starts(demos, "Angle", proto)
     assert a.demo.shape == (7, 2) and a.ring.shape == (56, 2) and a.box.shape == (64, 2)
     assert np.array_equal(a.all, b.all)
@@ -54,12 +54,12 @@ def test_protocol_and_option_errors_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="Circle"):
         P.resolve_shapes("Angle,Circle")
     with pytest.raises(ConfigError, match="train-demos"):
-        P.Protocol(train_demos=0)
+        P.LasaProtocol(train_demos=0)
     with pytest.raises(ConfigError, match="unknown option"):
         make_config(weights=5)
     with pytest.raises(ConfigError, match="n_weights_per_dim"):
         make_config(n_weights_per_dim=0)
-    assert P.stable_hash(P.Protocol().to_dict()) != P.stable_hash(P.Protocol(train_demos=5).to_dict())
+    assert P.stable_hash(P.LasaProtocol().to_dict()) != P.stable_hash(P.LasaProtocol(train_demos=5).to_dict())
     assert finite_or_none({"a": [1.0, float("inf")], "b": float("nan")}) == {"a": [1.0, None], "b": None}
 
 
@@ -87,7 +87,7 @@ def test_dmp_reproduces_angle_and_stays_at_the_goal() -> None:
     err = np.mean([rmse(a, b) for a, b in zip(y, demos.x)])
     assert err < ANGLE_RMSE_DMP_MAX
     # from far starts the DMP must reach the goal and stay there after its phase has decayed
-    x0 = P.starts(demos, "Angle", P.Protocol()).box[:8]
+    x0 = P.starts(demos, "Angle", P.LasaProtocol()).box[:8]
     t = np.linspace(0.0, 3 * model.duration, 600)
     traj = model.rollouts(x0, t)
     late = np.linalg.norm(traj[:, t > 1.5 * model.duration] - demos.goal, axis=-1)
@@ -130,7 +130,7 @@ def test_results_json_schema(quick: dict[str, Any]) -> None:
     assert {"protocol", "protocol_hash", "learners", "shapes", "seeds", "quick", "summary", "run",
             "results"} <= set(r)
     assert r["shapes"] == list(P.QUICK_SHAPES) and r["seeds"] == [0] and r["quick"] is True
-    assert r["protocol"] == P.Protocol().to_dict()
+    assert r["protocol"] == P.LasaProtocol().to_dict()
     assert [f"{c['learner']}__{c['shape']}__seed{c['seed']}" for c in r["results"]] == QUICK_CELLS
     for c in r["results"]:
         assert set(c["train"]) == set(METRICS) and c["test"] is None

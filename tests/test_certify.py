@@ -34,7 +34,7 @@ def models(spiral: lfd.DemoSet, tmp_path_factory: pytest.TempPathFactory) -> dic
     paths = {}
     for name, learner, options in (("weak", "contraction", {"rate": 0.2, "iterations": 30}),
                                    ("strong", "contraction", {"rate": 1.0, "iterations": 30}),
-                                   ("node", "node", {"iters": 150})):
+                                   ("node", "node", {"iterations": 150})):
         field = lfd.train(learner, spiral, seed=0, progress=False, **options)
         paths[name] = str(out / f"{name}.pt")
         field.save(paths[name])
@@ -49,7 +49,7 @@ def latent_worst(field: ContractionField) -> float:
 def small_node(spiral: lfd.DemoSet, w1: float, w2: float) -> lfd.VelocityField:
     """A NODE whose field is f(x_n) = W2 tanh(W1 x_n) - f(0) with W1 = w1 I, W2 = w2 I (one hidden layer
     of width d): J = w1 w2 diag(sech^2(w1 x_n)), so it contracts in the identity metric for w1 w2 < 0."""
-    field = lfd.train("node", spiral, seed=0, progress=False, iters=1, hidden=(2,))
+    field = lfd.train("node", spiral, seed=0, progress=False, iterations=1, hidden=(2,))
     with torch.no_grad():
         first, last = field.module.linears()
         first.weight.copy_(w1 * torch.eye(2))
@@ -188,7 +188,7 @@ def test_cli_exit_codes_and_json(models: dict[str, str], tmp_path, capsys) -> No
     assert report["worst"] <= report["bound"] + report["slack"] and len(report["argmax"]) == 2
     assert report["overshoot"] <= 10.0 * (1 + 1e-9)
     assert main(["certify", models["node"], "--demos", "spiral", "--samples", "400"]) == 1
-    assert main(["certify", models["node"], "--samples", "400"]) == 1   # box from history["demo_box"]
+    assert main(["certify", models["node"], "--samples", "400"]) == 1   # box from field.demo_box
     assert "NOT CERTIFIED" in capsys.readouterr().out
 
 

@@ -25,7 +25,7 @@ from lfd.commands.train import learner_options
 from lfd.demos import save_file, spiral, spiral3d
 from lfd.plotting import field_figure
 
-TINY = ["--iters", "4", "--hidden", "8,8", "--quiet"]
+TINY = ["--iterations", "4", "--hidden", "8,8", "--quiet"]
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +51,7 @@ def test_train_passes_only_given_options(work: Path, capsys: pytest.CaptureFixtu
     assert code == 0 and err == ""
     assert out.startswith("trained node on ") and "final loss" in out and "again.pt" in out
     field, first = lfd.load(str(work / "again.pt")), lfd.load(str(work / "model.pt"))
-    assert tuple(field.config["hidden"]) == (8, 8) and field.config["iters"] == 4
+    assert tuple(field.config["hidden"]) == (8, 8) and field.config["iterations"] == 4
     defaults = dataclasses.asdict(lfd.get_learner("node").Config())
     assert field.config["lr"] == defaults["lr"] and field.config["solver"] == defaults["solver"]
     assert len(field.history["loss"]) == 4
@@ -196,7 +196,7 @@ def test_option_names_and_types_follow_the_learner(monkeypatch: pytest.MonkeyPat
         return learner_options("fake", ns)
 
     assert parse() == {}
-    assert parse("--iters", "7", "--hidden", "16", "--lr", "0.5") == {"iterations": 7, "hidden": 16, "lr": 0.5}
+    assert parse("--iterations", "7", "--hidden", "16", "--lr", "0.5") == {"iterations": 7, "hidden": 16, "lr": 0.5}
     assert parse("--option", "widths=8,2", "--option", "damping=false", "--option", "name=b") == {
         "widths": (8, 2), "damping": False, "name": "b"}
     assert parse("--option", "other=1") == {"other": "1"}  # the learner's make_config rejects it

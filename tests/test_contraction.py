@@ -272,7 +272,7 @@ def test_every_start_around_the_demos_converges(weak: ContractionField, strong: 
 def test_single_point_call_uses_the_numpy_path_and_equals_the_torch_path(spec: str, weak: ContractionField) -> None:
     demos = lfd.load_demos(spec)
     field = weak if spec == "spiral" else lfd.train("contraction", demos, progress=False, iterations=20)
-    f = field.point_fn()
+    f = field.single_point_evaluator()
     pts = np.random.default_rng(1).uniform(*demos.bounds(1.0), size=(50, demos.dim))
     ref = field(pts)                                   # batched: the torch path
     got = np.stack([f(p) for p in pts])
@@ -345,7 +345,7 @@ def test_the_initial_latent_matrix_does_not_depend_on_memory_alignment() -> None
     assert len(results) == 1
 
 
-@pytest.mark.parametrize("learner, options", [("contraction", "iterations=20"), ("node", "iters=30")])
+@pytest.mark.parametrize("learner, options", [("contraction", "iterations=20"), ("node", "iterations=30")])
 def test_the_same_seed_gives_the_same_model_in_other_processes(learner: str, options: str) -> None:
     """Three processes with different hash seeds (so different heap layouts and numpy buffer
     alignments). Before the learners copied their input into aligned torch memory, hash seed 7

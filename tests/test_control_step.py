@@ -46,7 +46,7 @@ def _field() -> lfd.VelocityField:
 
 
 def _env(name: str, actuation: str = "torque", **kwargs):
-    return sim.make_environment(_robot(name, actuation), demos=_demos(), actuation=actuation,
+    return sim.make_environment(_robot(name, actuation), demos=_demos(),
                                 duration_s=kwargs.pop("duration_s", 1.0), **kwargs)
 
 
@@ -59,7 +59,7 @@ def test_mujoco_and_pinocchio_inverse_dynamics_track_alike(name: str, perts: tup
     for dynamics in ("mujoco", "pinocchio"):
         env = _env(name, perturbations=perts, dynamics=dynamics)
         assert env.task.controller.uses_mj_dynamics == (dynamics == "mujoco")
-        runs[dynamics] = execute(env, field.point_fn())
+        runs[dynamics] = execute(env, field.single_point_evaluator())
     a, b = runs["mujoco"], runs["pinocchio"]
     assert np.linalg.norm(a.ee[-1] - a.ee[0]) > 0.01                 # it moved
     assert np.abs(a.ee - b.ee).max() <= TRACK_TOL_M
@@ -94,7 +94,7 @@ def test_fused_command_equals_the_python_path(name: str, actuation: str) -> None
     env.reset()
     ctl, m, d = env.task.controller, env.physics.model.ptr, env.physics.data.ptr
     robot = _robot(name, actuation)
-    acts, f = robot.mj_actuator_ids, _field().point_fn()
+    acts, f = robot.mj_actuator_ids, _field().single_point_evaluator()
     rng = np.random.default_rng(1)
     states = [(robot.q_home + 0.2 * rng.normal(size=robot.n), 0.3 * rng.normal(size=robot.n)) for _ in range(10)]
     near = robot.q_max - 0.021                                            # beside the soft limit (margin 0.02)

@@ -286,7 +286,8 @@ def test_crafted_payloads_are_model_errors(tmp_path: Path) -> None:
         "goal.pt": ({**_payload(), "normalization": {"goal": [0.0], "scale": 1.0}}, "2 finite goal"),
         "nan.pt": (nan, "the model's weights contain NaN or inf"),
         "dim.pt": ({**_payload(), "dim": 7}, "dim must be 2 or 3"),
-        "box.pt": ({**_payload(), "history": {"demo_box": [[0.0], [1.0]]}}, "demo_box"),
+        "box.pt": ({**_payload(), "demo_box": [[0.0], [1.0]]}, "demo_box"),
+        "oldbox.pt": ({**_payload(), "history": {"demo_box": [[0.0], [1.0]]}}, "demo_box"),
     }
     for name, (payload, message) in cases.items():
         torch.save(_signed(payload), tmp_path / name)
@@ -303,6 +304,50 @@ def test_crafted_payloads_are_model_errors(tmp_path: Path) -> None:
     torch.save(_signed({**_payload(), "config": {"hidden": "wide"}}), tmp_path / "cfg.pt")
     with pytest.raises(ModelError, match=r"cfg\.pt: model does not match its learner 'node'"):
         lfd.load(str(tmp_path / "cfg.pt"))
+
+
+def _trained_payload(tmp_path: Path) -> tuple[dict, DemoSet]:
+    """The payload of a freshly trained tiny NODE file, without its checksum, and its demos."""
+    demos = spiral(n_demos=2, n_samples=40)
+    lfd.train("node", demos, iterations=2, hidden=(4,)).save(tmp_path / "fresh.pt")
+    payload = load_payload(tmp_path / "fresh.pt")
+    return {k: v for k, v in payload.items() if k not in ("checksum", "format_version")}, demos
+
+
+def _saved(path: Path, payload: dict) -> Path:
+    torch.save(_signed(payload), path)
+    return path
+
+
+def test_demo_box_is_its_own_entry_of_the_model_file(tmp_path: Path) -> None:
+    payload, demos = _trained_payload(tmp_path)
+    lo, hi = demos.bounds()
+    assert payload["demo_box"] == [lo.tolist(), hi.tolist()] and "demo_box" not in payload["history"]
+    field = lfd.load(str(tmp_path / "fresh.pt"))
+    assert field.demo_box is not None and "demo_box" not in field.history
+    assert np.array_equal(field.demo_box[0], lo) and np.array_equal(field.demo_box[1], hi)
+    no_box = {k: v for k, v in payload.items() if k != "demo_box"}
+    assert lfd.load(str(_saved(tmp_path / "none.pt", no_box))).demo_box is None
+
+
+def test_old_files_with_demo_box_in_history_still_load(tmp_path: Path) -> None:
+    payload, demos = _trained_payload(tmp_path)
+    box = payload.pop("demo_box")
+    old = {**payload, "history": {**payload["history"], "demo_box": box}}
+    field = lfd.load(str(_saved(tmp_path / "old.pt", old)))
+    assert field.demo_box is not None and [c.tolist() for c in field.demo_box] == box
+    assert field.history == payload["history"]          # the box left the training record
+
+
+def test_old_node_files_with_iters_still_load(tmp_path: Path) -> None:
+    payload, _ = _trained_payload(tmp_path)
+    config = {("iters" if k == "iterations" else k): v for k, v in payload["config"].items()}
+    field = lfd.load(str(_saved(tmp_path / "old.pt", {**payload, "config": config})))
+    assert field.config == lfd.load(str(tmp_path / "fresh.pt")).config
+    assert field.config["iterations"] == 2 and "iters" not in field.config
+    both = {**payload, "config": {**config, "iterations": 2}}    # never written: not mapped, refused
+    with pytest.raises(ModelError, match=r"both\.pt: model does not match its learner 'node' .*iters"):
+        lfd.load(str(_saved(tmp_path / "both.pt", both)))
 
 
 def test_never_shows_torchs_weights_only_advice(tmp_path: Path) -> None:

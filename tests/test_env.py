@@ -223,8 +223,8 @@ def test_make_environment_in_one_call() -> None:
 def test_execute_and_a_plain_dm_env_loop_agree(name: str) -> None:
     field = sink_field(demos())
     env = environment(name, duration_s=1.0)
-    ro = execute(env, field.point_fn())
-    f = field.point_fn()
+    ro = execute(env, field.single_point_evaluator())
+    f = field.single_point_evaluator()
     ts = env.reset()
     ee = [ts.observation["ee_position"]]
     while not ts.last():

@@ -19,7 +19,7 @@ pytestmark = [pytest.mark.usefixtures("one_thread"),
               pytest.mark.filterwarnings(r"ignore:`torch\.jit\.load` is deprecated:DeprecationWarning")]
 
 TOL = 1e-6     # issue 12: the export reproduces field(x) to 1e-6 (user units/s)
-LEARNERS = {"node": {"iters": 10, "hidden": (16, 16)}, "contraction": {"iterations": 5}}
+LEARNERS = {"node": {"iterations": 10, "hidden": (16, 16)}, "contraction": {"iterations": 5}}
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,8 @@ def models(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, lf
 
 def points(field: lfd.VelocityField, n: int = 500, grow: float = 1.5) -> np.ndarray:
     """n seeded points over the demos' box grown by ``grow`` times its size (outside the demos too)."""
-    lo, hi = (np.asarray(v) for v in field.history["demo_box"])
+    assert field.demo_box is not None
+    lo, hi = field.demo_box
     pad = (hi - lo) * grow / 2
     return np.random.default_rng(3).uniform(lo - pad, hi + pad, size=(n, field.dim))
 

@@ -26,7 +26,7 @@ from lfd.demos import save_file, spiral
 from lfd.errors import LfdError
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = ["--iters", "3", "--hidden", "4", "--quiet"]
+TINY = ["--iterations", "3", "--hidden", "4", "--quiet"]
 FUZZ = settings(max_examples=40, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -39,7 +39,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
     demos = spiral(n_demos=2, n_samples=20, seed=1)
     save_file(demos, d / "d.csv")
     save_file(demos, d / "d.npz")
-    lfd.train("node", demos, iters=2, hidden=(4,)).save(d / "m.pt")
+    lfd.train("node", demos, iterations=2, hidden=(4,)).save(d / "m.pt")
     return {name: (d / name).read_bytes() for name in ("d.csv", "d.npz", "m.pt")}
 
 
@@ -291,10 +291,10 @@ def test_help_is_plain_fast_to_import_and_lists_learners() -> None:
 
 def test_cache_retrains_a_corrupt_file_and_never_stores_an_interrupted_one(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    from sim.modelcache import cached_field
+    from lfd.cache import cached_field
 
     demos = spiral(n_demos=2, n_samples=20, seed=1)
-    opts = {"iters": 2, "hidden": (4,)}
+    opts = {"iterations": 2, "hidden": (4,)}
     _, path, trained = cached_field("node", demos, 0, opts, directory=tmp_path)
     assert trained and path.is_file()
     path.write_bytes(path.read_bytes()[:-100])  # truncated: unreadable
@@ -360,7 +360,7 @@ def test_demo_arm_interrupted_training_exits_130_and_caches_nothing(
     real = lfd.train
 
     def interrupted(*args, **kwargs):  # type: ignore[no-untyped-def]
-        kwargs["iters" if args[0] == "node" else "iterations"] = 2
+        kwargs["iterations"] = 2
         field = real(*args, **kwargs)
         field.history["interrupted"] = True  # as the learner reports a Ctrl-C mid-training
         return field

@@ -128,7 +128,7 @@ def _classic_rk4_reference(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray
 
 
 def test_point_rk4_is_classic_rk4_and_agrees_with_the_batched_rollout(spiral_field_2d: VelocityField) -> None:
-    f = spiral_field_2d.point_fn()
+    f = spiral_field_2d.single_point_evaluator()
     x0, t = np.array([1.5, 0.75]), np.linspace(0.0, 2.0, 101)
     got = integrate.rk4(f, x0, t, substeps=2)
     np.testing.assert_array_equal(got, _classic_rk4_reference(f, x0, t, 2))

@@ -95,7 +95,7 @@ def test_chamfer_std_is_chamfer_on_standardised_data() -> None:
 
 def test_grid_starts_cover_the_demo_box() -> None:
     d = lasa("Angle")
-    g = P.grid_starts(d, P.Protocol())
+    g = P.grid_starts(d, P.LasaProtocol())
     lo, hi = d.bounds()
     assert g.shape == (35 * 35, 2)
     np.testing.assert_allclose(g.min(0), lo, rtol=0, atol=1e-12)
@@ -146,7 +146,7 @@ def test_score_reports_every_definition_and_the_grid_counts_spurious_starts() ->
     for m in METRICS:
         assert all(np.isfinite(v) and v >= 0 for v in per[m]), m
     assert per["dtw_per_sample"][0] == pytest.approx(M.dtw(ys[0], d.x[0]) / d.n_samples, rel=1e-12)
-    protocol = P.Protocol(spurious_grid=9)
+    protocol = P.LasaProtocol(spurious_grid=9)
     assert spurious_grid(linear_model(d), d, protocol) == 0.0
     starts = P.grid_starts(d, protocol)
     dead = (starts[:, 0] - d.goal[0]) / linear_model(d).field.norm.scale < -0.5

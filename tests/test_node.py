@@ -28,7 +28,7 @@ from lfd.learners.node import (
 from lfd.normalization import Normalization
 
 # A short training: 300 iterations on the default spiral, 100 samples a demo, segments 2 -> 10.
-QUICK = dict(iters=300, samples=100, seg=10, seg_start=2, batch=128, lr=1e-2, lr_final=1e-4)
+QUICK = dict(iterations=300, samples=100, seg=10, seg_start=2, batch=128, lr=1e-2, lr_final=1e-4)
 # Measured 0.032-0.034 (seeds 0-2): rollouts from the demo starts vs the demos, RMSE / scale.
 QUICK_RMSE = 0.06
 # Measured 1.1e-4 (seeds 0-2): the final segment-loss (10 samples), normalised units squared.
@@ -58,7 +58,7 @@ def test_quick_training_fits_the_spiral(field: lfd.VelocityField, demos: DemoSet
     assert isinstance(field, NodeField)
     assert rollout_rmse(field, demos) < QUICK_RMSE
     h = field.history
-    assert len(h["loss"]) == QUICK["iters"] and h["iterations"] == QUICK["iters"]
+    assert len(h["loss"]) == QUICK["iterations"] and h["iterations"] == QUICK["iterations"]
     assert h["interrupted"] is False and h["stopped_nonfinite"] is False
     assert h["seg"] == QUICK["seg"]
     assert h["best_loss"] == min(h["loss"][h["best_iter"]:])
@@ -69,7 +69,7 @@ def test_quick_training_fits_the_spiral(field: lfd.VelocityField, demos: DemoSet
 
 
 def test_same_seed_gives_bit_identical_weights(demos: DemoSet) -> None:
-    opts: dict[str, Any] = dict(QUICK, iters=25)
+    opts: dict[str, Any] = dict(QUICK, iterations=25)
     a = lfd.train("node", demos, seed=3, progress=False, **opts)
     b = lfd.train("node", demos, seed=3, progress=False, **opts)
     c = lfd.train("node", demos, seed=4, progress=False, **opts)
@@ -80,9 +80,9 @@ def test_same_seed_gives_bit_identical_weights(demos: DemoSet) -> None:
 
 
 def test_progress_bar_only_when_asked(demos: DemoSet, capsys: pytest.CaptureFixture[str]) -> None:
-    lfd.train("node", demos, progress=False, **dict(QUICK, iters=5))
+    lfd.train("node", demos, progress=False, **dict(QUICK, iterations=5))
     assert capsys.readouterr().err == ""
-    lfd.train("node", demos, progress=True, **dict(QUICK, iters=5))
+    lfd.train("node", demos, progress=True, **dict(QUICK, iterations=5))
     assert "node:" in capsys.readouterr().err
 
 
@@ -94,7 +94,7 @@ def test_save_load_round_trip_is_bit_identical(field: lfd.VelocityField, tmp_pat
     assert loaded.config == field.config and loaded.history == field.history
     x = np.random.default_rng(0).uniform(-1.5, 1.5, (500, 2))
     np.testing.assert_array_equal(loaded(x), field(x))
-    f, g = field.point_fn(), loaded.point_fn()
+    f, g = field.single_point_evaluator(), loaded.single_point_evaluator()
     for xi in x[:50]:
         np.testing.assert_array_equal(g(xi), f(xi))
     t = np.linspace(0, 5, 50)
@@ -103,7 +103,7 @@ def test_save_load_round_trip_is_bit_identical(field: lfd.VelocityField, tmp_pat
 
 def test_config_is_json_and_recorded(field: lfd.VelocityField) -> None:
     cfg = json.loads(json.dumps(field.config))
-    assert cfg["hidden"] == [64, 64] and cfg["solver"] == "rk4" and cfg["iters"] == QUICK["iters"]
+    assert cfg["hidden"] == [64, 64] and cfg["solver"] == "rk4" and cfg["iterations"] == QUICK["iterations"]
     assert NodeLearner.make_config(**cfg) == NodeConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
 
 
@@ -119,7 +119,7 @@ def test_numpy_point_path_matches_torch(activation: str) -> None:
     f = NodeField(module, norm, "node", dataclasses.asdict(config))
     x = np.random.default_rng(2).uniform(-1.0, 2.0, (300, 3))
     ref = f(x)
-    point, point_n = f.point_fn(), f._point_fn_normalized()
+    point, point_n = f.single_point_evaluator(), f._point_fn_normalized()
     got = np.stack([point(xi) for xi in x])
     got_n = np.stack([point_n(xi) for xi in norm.to_norm(x)])
     assert np.abs(ref).max() > 1.0
@@ -176,7 +176,7 @@ def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.Monkey
         return real_step(self, *args, **kwargs)
 
     monkeypatch.setattr(torch.optim.Adam, "step", step)
-    f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iters=100, seg_start=10, lr=3e-2))
+    f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iterations=100, seg_start=10, lr=3e-2))
     h = f.history
     assert h["interrupted"] is True
     assert h["iterations"] == len(h["loss"]) == stop_at + 1
@@ -203,7 +203,7 @@ def test_divergence_stops_and_keeps_the_best_module(demos: DemoSet, monkeypatch:
 
     monkeypatch.setattr(torch.optim.Adam, "step", step)
     with pytest.warns(RuntimeWarning, match="non-finite at iteration 8"):
-        f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iters=50, seg_start=10))
+        f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iterations=50, seg_start=10))
     h = f.history
     assert h["stopped_nonfinite"] is True and h["interrupted"] is False and h["iterations"] == 8
     assert h["best_iter"] < 8 and np.isfinite(f(demos.x[:, 0])).all()
@@ -217,8 +217,8 @@ def test_divergence_stops_and_keeps_the_best_module(demos: DemoSet, monkeypatch:
     (dict(solver="rk45"), "unknown solver 'rk45'"),
     (dict(lr=-1.0), "lr must be a positive number"),
     (dict(lr=1e-3, lr_final=1e-2), "lr_final"),
-    (dict(iters=0), "iters must be an integer >= 1"),
-    (dict(iters=2.5), "iters must be an integer"),
+    (dict(iterations=0), "iterations must be an integer >= 1"),
+    (dict(iterations=2.5), "iterations must be an integer"),
     (dict(seg=1), "seg must be an integer >= 2"),
     (dict(seg=10, seg_start=12), "seg_start (12) must not exceed seg (10)"),
     (dict(batch=-1), "batch"),
@@ -239,11 +239,11 @@ def test_bad_config_is_a_config_error(options: dict[str, Any], message: str, dem
 def test_segments_longer_than_demos_are_a_config_error() -> None:
     short = lfd.spiral(n_samples=12)
     with pytest.raises(lfd.ConfigError, match=r"seg \(15\) exceeds the 12 samples"):
-        lfd.train("node", short, progress=False, iters=5, seg=15)
+        lfd.train("node", short, progress=False, iterations=5, seg=15)
 
 
 def test_adaptive_solver_and_adjoint_train(demos: DemoSet) -> None:
-    base = dict(QUICK, iters=15, seg=5, seg_start=5)
+    base = dict(QUICK, iterations=15, seg=5, seg_start=5)
     rk4 = lfd.train("node", demos, seed=0, progress=False, **base)
     dopri = lfd.train("node", demos, seed=0, progress=False,
                       **dict(base, solver="dopri5", rtol=1e-6, atol=1e-8))

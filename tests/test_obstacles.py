@@ -16,7 +16,7 @@ from conftest import linear_field
 import lfd
 from lfd.errors import ConfigError
 from lfd.goal import follow_goal_path, load_goal_path, parse_goal_shift, shift_goal
-from lfd.obstacles import AvoidingField, Box, Capsule, Obstacle, Sphere, avoid, parse_obstacle
+from lfd.obstacles import AvoidingField, Box, Capsule, Obstacle, Sphere, avoid, parse_obstacle, starts_outside
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -50,17 +50,11 @@ def on_path_obstacle(demos: lfd.DemoSet, fraction: float = 0.45, radius: float =
     return Sphere(c, radius * extent)
 
 
-def seeded_starts(field: AvoidingField, demos: lfd.DemoSet, n: int = N_STARTS, seed: int = 0,
-                  spread: float = 0.15) -> np.ndarray:
-    """n starts: demo starts plus uniform noise of +-spread x extent, outside every obstacle."""
-    rng = np.random.default_rng(seed)
-    extent = np.ptp(demos.x.reshape(-1, demos.dim), axis=0)
-    out = []
-    while len(out) < n:
-        x = demos.x[rng.integers(len(demos.x)), 0] + rng.uniform(-spread, spread, demos.dim) * extent
-        if field.gamma(x) > 1.05:
-            out.append(x)
-    return np.array(out)
+def seeded_starts(field: AvoidingField, demos: lfd.DemoSet, n: int = N_STARTS, seed: int = 0) -> np.ndarray:
+    """n starts: demo starts plus uniform noise of +-0.15 x extent, outside every obstacle."""
+    starts = starts_outside(field, demos, n, seed)
+    assert starts.shape == (n, demos.dim) and all(field.gamma(x) > 1.05 for x in starts)
+    return starts
 
 
 def path_length(y: np.ndarray) -> np.ndarray:
@@ -133,7 +127,7 @@ def test_point_path_agrees_with_batch_path_2d_and_3d() -> None:
                           Capsule([0.9, 0.9, 0.0], [0.9, 0.9, 0.5], 0.1)])):
         A = -np.eye(dim) + 0.5 * rng.normal(size=(dim, dim)) * 0.3
         f = avoid(linear_field(A, np.full(dim, -1.5)), obs)
-        pf = f.point_fn()
+        pf = f.single_point_evaluator()
         X = rng.uniform(-1.2, 1.2, (300, dim))
         for t in (0.0, 0.7):
             X_ok = X[f.gamma(X, t) > 1.0]
@@ -302,7 +296,7 @@ def test_goal_shift_is_reached_without_a_velocity_spike() -> None:
     assert speed.max() <= bound
     accel, accel0 = np.linalg.norm(np.diff(v, axis=1), axis=2).max(), np.linalg.norm(np.diff(v0, axis=1), axis=2).max()
     assert accel <= 5 * accel0 + 1e-9, "velocity jump at the goal shift"
-    pf = moved.point_fn()
+    pf = moved.single_point_evaluator()
     for tt in (0.0, 2.6, 2.8, 9.0):
         np.testing.assert_allclose(pf(demos.x[0, 0], tt), moved(demos.x[:1, 0], tt)[0], rtol=1e-9)
 
@@ -347,7 +341,7 @@ def test_lfd_plot_draws_obstacles_and_rejects_bad_ones(tmp_path, capsys) -> None
 
     save_file(spiral(n_demos=2, n_samples=60, seed=1), tmp_path / "demos.npz")
     assert main(["train", "--learner", "node", "--demos", str(tmp_path / "demos.npz"), "--out",
-                 str(tmp_path / "m.pt"), "--iters", "4", "--hidden", "8,8", "--quiet"]) == 0
+                 str(tmp_path / "m.pt"), "--iterations", "4", "--hidden", "8,8", "--quiet"]) == 0
     common = [str(tmp_path / "m.pt"), "--demos", str(tmp_path / "demos.npz"), "--perturbed", "2"]
     assert main(["plot", *common, "--out", str(tmp_path / "p.png"), "--obstacle", "sphere:0.4,0.3,0.1",
                  "--obstacle", "box:-0.5,-0.2,0.1,0.1;margin=0.02", "--goal-shift", "1:0.05,0"]) == 0

@@ -87,7 +87,7 @@ def test_signal_to_this_process_exits_130_and_leaves_no_file(
     out = tmp_path / "models" / "m.pt"
     out.parent.mkdir()
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    code = main(["train", "--demos", str(demos), "--out", str(out), "--iters", "50" if phase == "train" else "3",
+    code = main(["train", "--demos", str(demos), "--out", str(out), "--iterations", "50" if phase == "train" else "3",
                  "--hidden", "4", "--quiet"])
     assert code == 130 and capsys.readouterr() == ("", "lfd: interrupted\n")
     assert list(out.parent.iterdir()) == []  # no model, no hidden .tmp
@@ -105,7 +105,7 @@ def test_signals_exit_130_and_leave_no_file(demos: Path, tmp_path: Path) -> None
             out = tmp_path / f"{sig.name}-{phase}" / "m.pt"
             out.parent.mkdir()
             iters = "100000" if phase == "train" else "3"
-            argv = ["train", "--demos", str(demos), "--out", str(out), "--iters", iters, "--hidden", "4",
+            argv = ["train", "--demos", str(demos), "--out", str(out), "--iterations", iters, "--hidden", "4",
                     "--quiet"]
             proc = subprocess.Popen([sys.executable, "-c", CHILD, phase, *argv], stderr=subprocess.PIPE,
                                     stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env)

@@ -107,6 +107,23 @@ def test_perturbed_rollouts_repeat_exactly(planar, demos):
 
 
 # ---------------------------------------------------------------- dm_control environment
+def test_the_robot_is_the_one_source_of_the_actuation(planar, demos):
+    """load_robot checks the actuation once; the robot carries it to the controller and the experiment."""
+    from sim.errors import SimError
+
+    servo = load_robot("planar", actuation="position")
+    assert (servo.actuation, planar.actuation) == ("position", "torque")
+    for robot in (servo, planar):
+        exp = sim.Experiment(robot, demos, settle_s=0.1)
+        assert exp.describe()["actuation"] == robot.actuation
+        assert sim.make_environment(robot, demos=demos).task.controller.actuation == robot.actuation
+    assert sim.make_environment("planar", demos=demos, actuation="position").task.controller.actuation == "position"
+    with pytest.raises(SimError, match="loaded with actuation='position', not 'torque'"):
+        sim.make_environment(servo, demos=demos, actuation="torque")
+    with pytest.raises(TypeError):
+        sim.Experiment(planar, demos, actuation="torque")  # type: ignore[call-arg]
+
+
 def test_environment_reset_and_step(panda, demos):
     pl = sim.Placement.auto(panda, demos.x)
     env = sim.make_environment(panda, pl, demos.x[0, 0], demos.goal, duration_s=0.02)
@@ -219,7 +236,7 @@ def test_render_error_is_one_clear_line(monkeypatch):
 
 # ---------------------------------------------------------------- model cache
 def test_model_cache_trains_once_and_keys_on_seed_and_options(tmp_path, demos):
-    from sim.modelcache import cached_field
+    from lfd.cache import cached_field
 
     opts = {"layers": 2, "hidden": 8, "iterations": 5}
     f1, path, trained = cached_field("contraction", demos, 0, opts, tmp_path, progress=False)

@@ -25,7 +25,7 @@ import sweep_arm  # noqa: E402
 
 TIMINGS = {"run_s", "run_cpu_s", "control_step_us", "realtime_factor"}   # wall-clock numbers: differ run to run
 ARGS = ["--robots", "planar", "--directions", "2", "--forces", "20", "--offsets", "0.05", "--kinds", "push,offset",
-        "--option", "node.iters=30", "--option", "node.hidden=[16,16]", "--option", "contraction.iterations=10",
+        "--option", "node.iterations=30", "--option", "node.hidden=[16,16]", "--option", "contraction.iterations=10",
         "--option", "contraction.layers=1", "--option", "contraction.hidden=8"]
 N_RUNS = 8
 

@@ -164,7 +164,7 @@ def test_timeseries_and_plots(exp, pushed, tmp_path):
     assert z["t"][on].min() == pytest.approx(0.3, abs=0.003) and z["t"][on].max() < 0.5
     np.testing.assert_allclose(np.linalg.norm(z["push_force"][on], axis=1), 20.0)
     # the command is the field at the measured positions: it points back along the spiral
-    v0 = sink_field(exp.demos).point_fn()(exp.placement.to_task(z["ee"][0]))
+    v0 = sink_field(exp.demos).single_point_evaluator()(exp.placement.to_task(z["ee"][0]))
     np.testing.assert_allclose(z["command"][0], v0, rtol=1e-9)
     for fig, name in ((plots.run_figure(ts), "run.png"),
                       (plots.paths_figure(exp.demos.x, [("run", exp.placement.to_task(z["ee"]))], exp.demos.goal),
@@ -173,13 +173,42 @@ def test_timeseries_and_plots(exp, pushed, tmp_path):
         assert (tmp_path / name).read_bytes()[:4] == b"\x89PNG"
 
 
+def test_loop_records_qdot_command_and_push_force(exp, demos):
+    """Issue 13: the control loop records qdot, the field's command and the applied push force."""
+    from sim import timeseries
+
+    push = sim.Push(force_n=7.5, duration_s=0.1, start_s=0.25, direction=(1.0, 1.0, 0.0), seed=4)
+    result = exp.run(sink_field(demos), "my-push", perturbations=(push,))
+    ro = result.rollout
+    assert result.perturbations == (push,)                       # the very objects it ran with
+    dt = float(ro.t[1] - ro.t[0])
+    k0 = round(0.25 / dt)
+    k1 = k0 + round(0.1 / dt)
+    on = np.linalg.norm(ro.applied_force, axis=1) > 0
+    assert np.flatnonzero(on).tolist() == list(range(k0, k1))    # exactly the push window's steps
+    assert ro.push_window_s == pytest.approx((ro.t[k0], ro.t[k1]))
+    np.testing.assert_allclose(np.linalg.norm(ro.applied_force[on], axis=1), 7.5, rtol=1e-12)
+    np.testing.assert_allclose(ro.applied_force[on], np.tile([7.5 / np.sqrt(2), 7.5 / np.sqrt(2), 0.0], (k1 - k0, 1)),
+                               atol=1e-12)
+    # qdot is MuJoCo's joint velocity, read by the loop: it agrees with the differences of q
+    dq = np.gradient(ro.q, ro.t, axis=0)
+    assert np.abs(ro.qdot - dq)[5:-5].max() < 0.05 * np.abs(ro.qdot).max() + 1e-3
+    # the recorded command is the field at the measured positions, as Experiment.command recomputes it
+    np.testing.assert_allclose(ro.command, exp.command(sink_field(demos), ro), rtol=1e-9, atol=1e-12)
+    ts = timeseries.arrays(result, exp.placement, exp.robot)
+    assert ts["qdot"] is not None and np.array_equal(ts["qdot"], ro.qdot)
+    assert np.array_equal(ts["push_force"], ro.applied_force) and np.array_equal(ts["command"], ro.command)
+    assert json.loads(str(ts["perturbations"])) == json.loads(json.dumps([push.describe()]))
+    assert np.allclose(exp.run(sink_field(demos), "none").rollout.applied_force, 0.0)
+
+
 def test_loss_plot_marks_the_curriculum_stages():
     from matplotlib.figure import Figure
 
     from lfd.plotting import curriculum_stages, draw_loss
 
     history = {"loss": list(np.linspace(1.0, 0.1, 100))}
-    config = {"seg": 10, "seg_start": 2, "curriculum": 0.5, "iters": 100}
+    config = {"seg": 10, "seg_start": 2, "curriculum": 0.5, "iterations": 100}
     stages = curriculum_stages(history, config)
     assert [s for _, s in stages] == list(range(2, 11))
     assert stages[0][0] == 1 and 45 <= stages[-1][0] <= 51
@@ -207,6 +236,7 @@ def test_demo_arm_writes_series_plots_and_video_matching_metrics(demo_arm, tmp_p
     monkeypatch.setattr(lfd, "load_demos", lambda spec: short)
     out = tmp_path / "out"
     rc = demo_arm.main(["--robot", "planar", "--model", str(model), "--perturb", "push", "--push-start", "0.5",
+                        "--push-force", "12.5", "--push-duration", "0.1",
                         "--out", str(out), "--quiet", "--size", "160x120", "--fps", "12"])
     assert rc == 0
     report = json.loads((out / "metrics.json").read_text())
@@ -221,6 +251,26 @@ def test_demo_arm_writes_series_plots_and_video_matching_metrics(demo_arm, tmp_p
     assert float(np.linalg.norm(z["ee"][-1] - z["goal"])) == pytest.approx(m["final_goal_error_m"], rel=1e-9)
     for name in ("node_push.png", "paths.png"):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
+    # the custom push is what the run recorded and what both files say
+    (described,) = run["perturbations"]
+    assert (described["kind"], described["force_n"], described["start_s"], described["duration_s"]) == \
+        ("push", 12.5, 0.5, 0.1)
+    assert json.loads(str(z["perturbations"])) == run["perturbations"]
+    on = np.linalg.norm(z["push_force"], axis=1) > 0
+    assert z["t"][on].min() == pytest.approx(0.5, abs=1e-9) and len(z["t"][on]) == round(0.1 / (z["t"][1] - z["t"][0]))
+    np.testing.assert_allclose(np.linalg.norm(z["push_force"][on], axis=1), 12.5)
+    assert z["qdot"].shape == z["q"].shape and np.isfinite(z["qdot"]).all()
+
+
+def test_demo_arm_writes_the_perturbations_of_the_result(demo_arm, exp, demos):
+    """metrics.json takes a run's perturbations from its result, not from the scenario's name."""
+    push = sim.Push(force_n=3.0, duration_s=0.05, start_s=0.4, seed=7)
+    result = exp.run(sink_field(demos), "push", perturbations=(push,))
+    entry = demo_arm.run_entry(result)
+    assert entry["perturbations"] == [push.describe()]
+    assert entry["perturbations"][0]["force_n"] == 3.0 and entry["perturbations"][0]["start_s"] == 0.4
+    assert entry["perturbations"] != [p.describe() for p in sim.experiment.scenario("push")]
+    assert entry["metrics"] is result.metrics
 
 
 @pytest.mark.parametrize("argv, message", [

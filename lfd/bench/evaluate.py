@@ -118,11 +118,11 @@ class FieldModel:
 
     def rollouts(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
         """The fallback step is t's interval / FALLBACK_SUBSTEPS: the horizon grid is
-        ``Protocol.horizon_stride`` (4) demo sample intervals apart."""
+        ``LasaProtocol.horizon_stride`` (4) demo sample intervals apart."""
         return self._solve(x0, t, "rollouts", float(t[1] - t[0]) / self.FALLBACK_SUBSTEPS)
 
     def step_time_us(self, points: np.ndarray, calls: int) -> float:
-        f = self.field.point_fn()
+        f = self.field.single_point_evaluator()
         pts = [np.array(p) for p in points[:calls]]
         for p in pts[:20]:
             f(p)
@@ -211,7 +211,7 @@ def convergence(final: np.ndarray, goal: np.ndarray, st: proto.Starts, radius: f
     return out
 
 
-def spurious_grid(model: Model, demos: DemoSet, protocol: proto.Protocol) -> float | None:
+def spurious_grid(model: Model, demos: DemoSet, protocol: proto.LasaProtocol) -> float | None:
     """The spurious-attractor fraction of CONDOR/PUMA: of the ``protocol.spurious_grid`` squared
     starts of ``proto.grid_starts`` (over the demos' bounding box), the fraction whose rollout
     over the convergence horizon (``proto.horizon``) does not end within ``radius_mm`` of the
@@ -230,7 +230,7 @@ def spurious_grid(model: Model, demos: DemoSet, protocol: proto.Protocol) -> flo
 
 
 def evaluate_cell(learner: str, shape: str, seed: int, options: dict[str, Any],
-                  protocol: proto.Protocol) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+                  protocol: proto.LasaProtocol) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Train and score one (learner, shape, seed). Returns the JSON record and the arrays for
     the figures: ``demo_rollouts`` (N, T, 2), ``starts`` (B, 2), ``rollouts`` (B, keep, 2),
     ``final`` (B, 2), ``grid_x`` (G,), ``grid_y`` (G,), ``grid_v`` (G, G, 2) or (0,)."""

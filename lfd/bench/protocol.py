@@ -1,7 +1,7 @@
 """The LASA benchmark protocol: which data, which split, which starts, which horizon.
 
 Everything a number in the report depends on, other than the learner and its seed, is a field
-of ``Protocol``; its hash keys the result cache, so changing any of them recomputes.
+of ``LasaProtocol``; its hash keys the result cache, so changing any of them recomputes.
 
 - Data: ``lfd.lasa(shape)``, 7 demos x 1000 samples, 2-D, in mm, goal (mean end point) at the
   origin to 1e-3 mm. No resampling, no filtering beyond ``DemoSet``'s smoothed velocities; the
@@ -30,6 +30,7 @@ import numpy as np
 from lfd.demos import LASA_SHAPES, DemoSet
 from lfd.errors import ConfigError
 from lfd.metrics import grid_starts as metric_grid_starts
+from lfd.validate import check_ints
 
 PROTOCOL_VERSION = 2  # 2: dtw_per_sample, chamfer_dtwd_std, lobe-sum swept area, spurious grid
 N_LASA_DEMOS = 7
@@ -37,48 +38,38 @@ QUICK_SHAPES: tuple[str, ...] = ("Angle", "Sine", "GShape")
 
 
 @dataclass(frozen=True)
-class Protocol:
+class LasaProtocol:
     """The fixed settings of one benchmark run (see the module docstring).
 
-    train_demos : K, the first K demos train, demos K..6 are test
-    ring_radius, ring_points : perturbed starts on a ring around each demo start
-    box_points, box_grow : uniform starts in the demos' bounding box grown by box_grow
-    starts_seed : seed of the perturbed starts (independent of the learner's seed)
-    radius_mm, horizon_factor : convergence radius (mm) and horizon (x longest demo duration)
-    horizon_stride : convergence rollouts step horizon_stride x the demos' mean sample interval
-    dtw_step : DTW on every dtw_step-th sample (the LASA convention is 4)
-    grid : streamline grid points per side (for the figures)
-    spurious_grid : starts per side of the spurious-attractor grid over the demos' bounding box
-    keep_points : samples kept per convergence rollout for the figures
-    timing_calls : single-point evaluations timed per repeat (5 repeats, median)
+    Every field is a setting of the protocol, described beside it with its unit; a bad value is a
+    ``ConfigError``. ``to_dict`` (with ``PROTOCOL_VERSION``) keys the result cache.
     """
 
-    train_demos: int = N_LASA_DEMOS
-    ring_radius: float = 0.1
-    ring_points: int = 8
-    box_points: int = 64
-    box_grow: float = 0.5
-    starts_seed: int = 0
-    radius_mm: float = 1.0
-    horizon_factor: float = 3.0
-    horizon_stride: int = 4
-    dtw_step: int = 4
-    grid: int = 40
-    spurious_grid: int = 35
-    keep_points: int = 200
-    timing_calls: int = 500
+    train_demos: int = N_LASA_DEMOS  # K: demos 0..K-1 train, demos K..6 are held out
+    ring_radius: float = 0.1         # ring starts at ring_radius x extent around each demo start
+    ring_points: int = 8             # starts on each ring
+    box_points: int = 64             # starts uniform in the demos' bounding box grown by box_grow
+    box_grow: float = 0.5            # the box grows by this fraction of its size
+    starts_seed: int = 0             # seed of the perturbed starts (independent of the learner's seed)
+    radius_mm: float = 1.0           # convergence radius, mm
+    horizon_factor: float = 3.0      # convergence horizon, x the longest demo's duration
+    horizon_stride: int = 4          # convergence rollouts step this x the demos' mean sample interval
+    dtw_step: int = 4                # DTW on every dtw_step-th sample (the LASA convention is 4)
+    grid: int = 40                   # streamline grid points per side (for the figures)
+    spurious_grid: int = 35          # starts per side of the spurious-attractor grid over the demos' box
+    keep_points: int = 200           # samples kept per convergence rollout for the figures
+    timing_calls: int = 500          # single-point evaluations timed per repeat (5 repeats, median)
 
     def __post_init__(self) -> None:
         if not 1 <= self.train_demos <= N_LASA_DEMOS:
             raise ConfigError(f"--train-demos must be between 1 and {N_LASA_DEMOS}, got {self.train_demos}")
-        if self.ring_points < 0 or self.box_points < 0 or self.dtw_step < 1 or self.horizon_stride < 1:
-            raise ConfigError("ring_points and box_points must be >= 0, dtw_step and horizon_stride >= 1")
-        if self.spurious_grid < 2:
-            raise ConfigError(f"spurious_grid must be >= 2, got {self.spurious_grid}")
+        check_ints(self, (("ring_points", 0, None), ("box_points", 0, None), ("dtw_step", 1, None),
+                          ("horizon_stride", 1, None), ("spurious_grid", 2, None)), error=ConfigError)
         if not (self.radius_mm > 0 and self.horizon_factor > 0 and self.ring_radius >= 0):
             raise ConfigError("radius_mm and horizon_factor must be positive, ring_radius >= 0")
 
     def to_dict(self) -> dict[str, Any]:
+        """The settings and ``version`` (PROTOCOL_VERSION), plain JSON values (the cache key)."""
         return {"version": PROTOCOL_VERSION, **asdict(self)}
 
 
@@ -126,7 +117,7 @@ class Starts:
         return {"demo": slice(0, a), "ring": slice(a, b), "box": slice(b, b + len(self.box))}
 
 
-def starts(demos: DemoSet, shape: str, protocol: Protocol) -> Starts:
+def starts(demos: DemoSet, shape: str, protocol: LasaProtocol) -> Starts:
     """The demo starts x_i(0), shape (N, d); rings x_i(0) + r (cos th_ik, sin th_ik) with
     r = ring_radius * extent, th_ik = 2 pi (k + u_i) / ring_points, u_i ~ U(0, 1); and box points
     ~ U(lo, hi) of ``demos.bounds(box_grow)``. Seeded by (starts_seed, crc32(shape))."""
@@ -142,7 +133,7 @@ def starts(demos: DemoSet, shape: str, protocol: Protocol) -> Starts:
     return Starts(demo=x0, ring=ring, box=box)
 
 
-def horizon(demos: DemoSet, protocol: Protocol) -> tuple[float, int]:
+def horizon(demos: DemoSet, protocol: LasaProtocol) -> tuple[float, int]:
     """(H, n): H = horizon_factor * max_i (t_i[-1] - t_i[0]); n samples so that the step
     H / (n - 1) is at most horizon_stride times the demos' mean sample interval."""
     durations = demos.t[:, -1] - demos.t[:, 0]
@@ -151,7 +142,7 @@ def horizon(demos: DemoSet, protocol: Protocol) -> tuple[float, int]:
     return h, int(np.ceil(h / dt)) + 1
 
 
-def grid_starts(demos: DemoSet, protocol: Protocol) -> np.ndarray:
+def grid_starts(demos: DemoSet, protocol: LasaProtocol) -> np.ndarray:
     """The spurious-attractor starts: a ``spurious_grid`` x ``spurious_grid`` grid over the demos'
     bounding box ``demos.bounds()``, corners included, shape (spurious_grid^2, 2)
     (``lfd.metrics.grid_starts``)."""

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from lfd.bench.evaluate import METRICS
+from lfd.bench.protocol import N_LASA_DEMOS, LasaProtocol
 from lfd.io import atomic_write
 
 # Each metric under its own name; formulas in docs/benchmark.md ("Reproduction metrics").
@@ -29,8 +30,10 @@ FORMATS: dict[str, str] = {"dtw": ".0f", "dtw_per_sample": ".2f", "rmse": ".2f",
                            "chamfer_dtwd_std": ".3f", "frechet": ".2f", "swept_area": ".0f",
                            "velocity_rmse": ".1f", "cosine_error": ".3f"}
 
-# Peers measured on six LASA shapes (true DTW over every 4th sample, one torch thread), from the brief.
-REFERENCES: dict[str, dict[str, float]] = {
+# Peer reference points, not computed here: the numbers the project brief gives for two published
+# learners, measured by peers on six LASA shapes (true DTW over every 4th sample, one torch thread).
+# Methods: Euclideanizing Flows (Rana et al., L4DC 2020, arXiv:2005.13143) and ELCD. Printed as given.
+PEER_REFERENCES: dict[str, dict[str, float]] = {
     "Euclideanizing Flows": {"train_time_s": 110.0, "dtw": 300.0, "rmse": 4.9, "step_time_us": 9700.0,
                              "converged": 0.99},
     "ELCD": {"train_time_s": 28.0, "dtw": 847.0, "rmse": 9.1, "step_time_us": 14600.0, "converged": 0.43},
@@ -352,9 +355,16 @@ def write_report(path: str | Path, records: list[dict[str, Any]], learners: list
     return figures
 
 
+def n_starts(protocol: dict[str, Any]) -> int:
+    """Convergence starts per shape under ``protocol`` (``LasaProtocol.to_dict()``): the demo
+    starts, a ring around each, and the box starts (``lfd.bench.protocol.starts``)."""
+    return N_LASA_DEMOS * (1 + int(protocol["ring_points"])) + int(protocol["box_points"])
+
+
 def _intro_lines(shapes: list[str], protocol: dict[str, Any], run: dict[str, Any]) -> list[str]:
     """The report's title and its description of the protocol and of this run."""
-    k = protocol["train_demos"]
+    k, n = protocol["train_demos"], N_LASA_DEMOS
+    grid = protocol.get("spurious_grid", LasaProtocol.spurious_grid)
     return [
         "# LASA benchmark",
         "",
@@ -362,18 +372,17 @@ def _intro_lines(shapes: list[str], protocol: dict[str, Any], run: dict[str, Any
         f"(version {protocol['version']}).",
         "",
         f"- {len(shapes)} shapes, seeds {run['seeds']}, trained on demos 0..{k - 1}"
-        + (f", demos {k}..6 held out" if k < 7 else " (all 7)") + "; metrics in mm, DTW = sum of "
+        + (f", demos {k}..{n - 1} held out" if k < n else f" (all {n})") + "; metrics in mm, DTW = sum of "
         f"distances along the optimal warping path over every {protocol['dtw_step']}th sample; "
         "DTW/T = DTW over all samples divided by the sample count (CONDOR, PUMA); "
         "DTWD* = closest-point (Chamfer) distance, not DTW; DTWD*/σ = the same on data divided by "
         "its per-coordinate std (ELCD, NCDS); swept area = sum of quadrilateral areas, a crossed one "
         "counted as the sum of its two lobes; formulas in docs/benchmark.md.",
-        f"- Spurious attractors (CONDOR, PUMA): fraction of a {protocol.get('spurious_grid', 35)}×"
-        f"{protocol.get('spurious_grid', 35)} grid of starts over the demos' bounding box that does not "
-        "converge (not computed for the time-indexed DMP).",
+        f"- Spurious attractors (CONDOR, PUMA): fraction of a {grid}×{grid} grid of starts over the "
+        "demos' bounding box that does not converge (not computed for the time-indexed DMP).",
         f"- Convergence: within {protocol['radius_mm']:g} mm of the goal after "
         f"{protocol['horizon_factor']:g}x "
-        f"the longest demo's duration, from {7} demo starts, {7 * protocol['ring_points']} ring starts "
+        f"the longest demo's duration, from {n} demo starts, {n * protocol['ring_points']} ring starts "
         f"({protocol['ring_radius']:g} x extent around each demo start) and {protocol['box_points']} box "
         f"starts (bounding box grown by {100 * protocol['box_grow']:g}%) per shape.",
         run_line(run),
@@ -384,13 +393,14 @@ def _intro_lines(shapes: list[str], protocol: dict[str, Any], run: dict[str, Any
 def _summary_lines(records: list[dict[str, Any]], summary: dict[str, Any], rows_by: dict[str, Any],
                    shapes: list[str], protocol: dict[str, Any]) -> list[str]:
     """The summary tables (training demos, common shapes, held-out demos) and the targets."""
-    k = protocol["train_demos"]
+    k, n = protocol["train_demos"], N_LASA_DEMOS
     md = [
         "## Summary (mean / median over shapes)",
         "",
         "Reproduction metrics on the training demos"
-        + (f" (demos 0..{k - 1}; the held-out demos follow below)." if k < 7 else " (all 7).")
-        + " Convergence: fraction of all 127 starts per shape, and of all perturbed starts pooled.",
+        + (f" (demos 0..{k - 1}; the held-out demos follow below)." if k < n else f" (all {n}).")
+        + f" Convergence: fraction of all {n_starts(protocol)} starts per shape, and of all perturbed "
+        "starts pooled.",
         "",
         summary_table(summary, "train"),
         "",
@@ -410,5 +420,5 @@ def _summary_lines(records: list[dict[str, Any]], summary: dict[str, Any], rows_
     md.append(_table(["method", "train (s/shape)", "DTW", "RMSE (mm)", "step (µs)", "converged"],
                      [[name, f"{r['train_time_s']:g}", f"{r['dtw']:g}", f"{r['rmse']:g}",
                        f"{r['step_time_us']:g}", f"{100 * r['converged']:g}%"]
-                      for name, r in REFERENCES.items()]))
+                      for name, r in PEER_REFERENCES.items()]))
     return md + [""]

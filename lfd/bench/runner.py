@@ -45,7 +45,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from lfd.bench.protocol import Protocol, stable_hash
+from lfd.bench.protocol import LasaProtocol, stable_hash
 from lfd.io import atomic_write, finite_or_none, write_json
 
 # cells of slower learners first, so the pool's tail is short
@@ -68,18 +68,21 @@ def resolve_config(learner: str, options: dict[str, Any]) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class Cell:
-    """One unit of work. options : the learner's keyword options (as passed to ``lfd.train``)."""
+    """One unit of work: one learner trained with one seed on one LASA shape, and scored.
 
-    learner: str
-    shape: str
-    seed: int
-    options: dict[str, Any] = field(hash=False)
-    protocol: Protocol = field(hash=False)
-    hash: str = ""
+    Build it with ``make``, which computes ``hash``; each field is described beside it.
+    """
+
+    learner: str                                  # a name of lfd.learners.LEARNERS, or "dmp"
+    shape: str                                    # a LASA shape name
+    seed: int                                     # the learner's seed
+    options: dict[str, Any] = field(hash=False)   # the learner's keyword options, as for lfd.train
+    protocol: LasaProtocol = field(hash=False)    # the benchmark's fixed settings
+    hash: str = ""                                # the cache key: protocol, learner, full config, shape, seed
 
     @classmethod
     def make(cls, learner: str, shape: str, seed: int, options: dict[str, Any],
-             protocol: Protocol) -> Cell:
+             protocol: LasaProtocol) -> Cell:
         key = {"protocol": protocol.to_dict(), "learner": learner,
                "config": resolve_config(learner, options), "shape": shape, "seed": seed}
         return cls(learner, shape, seed, dict(options), protocol, stable_hash(key))
@@ -90,9 +93,18 @@ class Cell:
 
 
 @dataclass
-class RunResult:
-    """records : one JSON record per cell, in the order of the cells given;
-    computed, cached : stems of the cells trained in this run and of those read from the cache."""
+class BenchResult:
+    """The outcome of a benchmark run (``run_cells``); ``sim.RunResult`` is one arm run instead.
+
+    Attributes
+    ----------
+    records : list of dict
+        One JSON record per cell, in the order of the cells given (``evaluate_cell``).
+    computed : list of str
+        Stems (``Cell.stem``) of the cells trained and scored in this run.
+    cached : list of str
+        Stems of the cells read from the cache.
+    """
 
     records: list[dict[str, Any]]
     computed: list[str]
@@ -189,7 +201,7 @@ def check_executor(executor: str, address: str | None = None) -> str | None:
 
 
 def run_cells(cells: list[Cell], cache: str | Path, workers: int = 1, fresh: bool = False,
-              progress: bool = True, executor: str = "local", address: str | None = None) -> RunResult:
+              progress: bool = True, executor: str = "local", address: str | None = None) -> BenchResult:
     """Run every cell not already in ``cache`` (all of them with ``fresh``), ``workers`` at a
     time, on ``executor`` (module docstring; ``local`` with 1 worker: in this process, with one
     torch thread; ``ray`` with ``address``: on that cluster). Returns records in the order of
@@ -228,7 +240,7 @@ def run_cells(cells: list[Cell], cache: str | Path, workers: int = 1, fresh: boo
             _run_pool(todo, cache, workers, done, bar)
     finally:
         bar.close()
-    return RunResult([done[c.stem] for c in cells], [c.stem for c in todo], cached)
+    return BenchResult([done[c.stem] for c in cells], [c.stem for c in todo], cached)
 
 
 def _run_pool(todo: list[Cell], cache: Path, workers: int, done: dict[str, dict[str, Any]],

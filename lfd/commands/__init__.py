@@ -1,6 +1,7 @@
 """Subcommands of the ``lfd`` command line, one module each (see ``lfd.cli``).
 
-This file holds the one step several commands share: reading a model with its demos.
+This file holds what several commands share: their model and demo arguments, and reading a
+model with its demos.
 """
 
 from __future__ import annotations
@@ -10,8 +11,20 @@ from typing import TYPE_CHECKING, Any
 from lfd.errors import DemoError
 
 if TYPE_CHECKING:  # imported when a command runs, so that ``lfd --help`` stays fast
+    import argparse
+
     from lfd.demos import DemoSet
     from lfd.field import VelocityField
+
+MODEL_HELP = "model file written by 'lfd train'"
+DEMOS_HELP = "spiral, spiral3d, lasa:NAME or a .csv/.npz file"
+
+
+def add_model_and_demos(p: argparse.ArgumentParser) -> None:
+    """The arguments of a command that reads a model with its demos (``model_and_demos``): the
+    model file, positional, and ``--demos SPEC``, required."""
+    p.add_argument("model", help=MODEL_HELP)
+    p.add_argument("--demos", required=True, metavar="SPEC", help=DEMOS_HELP)
 
 
 def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False) -> tuple[VelocityField, DemoSet]:

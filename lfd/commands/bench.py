@@ -18,7 +18,7 @@ BENCH_LEARNERS: tuple[str, ...] = ("node", "contraction", "tracking", "dmp")
 # --quick: fewer iterations, for the CI smoke test (merged under any --option given)
 QUICK_OPTIONS: dict[str, dict[str, Any]] = {
     "contraction": {"iterations": 60},
-    "node": {"iters": 200},
+    "node": {"iterations": 200},
     "tracking": {},
     "dmp": {},
 }
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     learners = resolve_learners(args.learner)
     shapes_by = resolve_shape_sets(args.shapes, learners, args.quick)
     shapes = list(dict.fromkeys(s for learner in learners for s in shapes_by[learner]))
-    protocol = proto.Protocol(train_demos=args.train_demos)
+    protocol = proto.LasaProtocol(train_demos=args.train_demos)
     options = parse_options(args.option, learners)
     if args.quick:
         options = {k: {**QUICK_OPTIONS.get(k, {}), **v} for k, v in options.items()}

@@ -30,14 +30,14 @@ def parse_box(text: str) -> tuple[Any, Any]:
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.commands import source_constant
+    from lfd.commands import MODEL_HELP, source_constant
 
     # read from lfd/certify.py without importing it (it imports torch; ``lfd --help`` stays fast)
     DEFAULT_SAMPLES, DEFAULT_TOLERANCE, IDENTITY_RATE = (  # noqa: N806
         source_constant("lfd.certify", n) for n in ("DEFAULT_SAMPLES", "DEFAULT_TOLERANCE", "IDENTITY_RATE"))
     p = subparsers.add_parser("certify", help="check a model's contraction condition on a grid",
                               description=__doc__.splitlines()[0])
-    p.add_argument("model", help="model file written by 'lfd train'")
+    p.add_argument("model", help=MODEL_HELP)
     p.add_argument("--box", type=parse_box, metavar="XMIN,XMAX,YMIN,YMAX[,ZMIN,ZMAX]",
                    help="box to check, user units; write --box=-1,1,-1,1 when it starts with a minus "
                         "(default: the demos' box grown by 50%%)")

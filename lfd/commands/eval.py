@@ -18,11 +18,11 @@ UNITS = ("units: the demos' length unit U (cosine_error: none, in [0, 2]); dtw i
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    from lfd.commands import add_model_and_demos
+
     p = subparsers.add_parser("eval", help="score a model's rollouts against demos",
                               description=__doc__.splitlines()[0])
-    p.add_argument("model", help="model file written by 'lfd train'")
-    p.add_argument("--demos", required=True, metavar="SPEC",
-                   help="spiral, spiral3d, lasa:NAME or a .csv/.npz file")
+    add_model_and_demos(p)
     p.add_argument("--json", metavar="PATH", help="write the metrics to this JSON file")
     p.add_argument("--dtw-step", type=int, default=1, metavar="K",
                    help="DTW on every K-th sample (the LASA protocol uses 4; default 1)")

@@ -20,7 +20,7 @@ Formats (``--format``), each a function of user-unit positions x -> dx/dt in use
   f(x) ~ sum over the 2^d corners c of prod_k (t_k if c_k = 1 else 1 - t_k) v[corner c];
   outside the box, clamp x to it first (the grid says nothing there). ``GridField`` does exactly
   this; it equals ``scipy.interpolate.RegularGridInterpolator(method="linear")`` inside the box.
-  The default box is the training demos' box (``history["demo_box"]``) grown by 50%; the error
+  The default box is the training demos' box (``field.demo_box``) grown by 50%; the error
   between nodes is O(h^2) (measured in tests/test_export.py).
 
 Every export is checked before it is written: the exported function (for ``npz-grid``, the grid
@@ -50,11 +50,12 @@ GRID_FORMAT = "lfd-npz-grid-1"
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    from lfd.commands import MODEL_HELP
     from lfd.commands.certify import parse_box
 
     p = subparsers.add_parser("export", help="write a model's field as TorchScript, ONNX or an NPZ grid",
                               description=__doc__.splitlines()[0])
-    p.add_argument("model", help="model file written by 'lfd train'")
+    p.add_argument("model", help=MODEL_HELP)
     p.add_argument("--format", required=True, choices=FORMATS, help="torchscript, onnx or npz-grid")
     p.add_argument("--out", required=True, metavar="PATH", help="file to write")
     p.add_argument("--grid", type=int, metavar="N",
@@ -220,7 +221,7 @@ def export_grid(field: VelocityField, path: str, n: int | None = None, lo: np.nd
                 hi: np.ndarray | None = None) -> float:
     """Sample the field on an n^d grid over [lo, hi] and write the NPZ (module docstring).
 
-    lo, hi : array, shape (d,), user units (default: ``history["demo_box"]`` grown by 50%).
+    lo, hi : array, shape (d,), user units (default: ``field.demo_box`` grown by 50%).
     Returns the max deviation of ``GridField`` from ``field`` at the grid nodes (0 up to round-off).
     """
     import numpy as np

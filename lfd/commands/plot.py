@@ -12,13 +12,11 @@ MAX_DPI = 1000  # the figure is about 12 x 5 inches: 1000 dpi is already 60 mega
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.commands import seed
+    from lfd.commands import add_model_and_demos, seed
 
     p = subparsers.add_parser("plot", help="plot a model's field, rollouts and loss",
                               description=__doc__.splitlines()[0])
-    p.add_argument("model", help="model file written by 'lfd train'")
-    p.add_argument("--demos", required=True, metavar="SPEC",
-                   help="spiral, spiral3d, lasa:NAME or a .csv/.npz file")
+    add_model_and_demos(p)
     p.add_argument("--out", required=True, metavar="PATH", help=f"image file ({', '.join(FORMATS)})")
     p.add_argument("--perturbed", type=int, default=8, metavar="N",
                    help="rollouts from N perturbed starts (default 8)")

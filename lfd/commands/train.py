@@ -1,12 +1,11 @@
 """``lfd train``: fit a learner to demos and write the model file.
 
 Only the options the user gives reach the learner, so each learner keeps its own defaults. Each
-flag names a learner option (a field of the learner's Config); where learners spell one idea
-differently the flag goes to the name the chosen learner has (``--iters`` -> ``iters`` or
-``iterations``). Values are converted to the type of the option's default (``--hidden 32`` is the
-int 32 for a learner whose default width is an int, the tuple (32,) for one whose default is a
-tuple of widths). ``--option KEY=VALUE`` reaches any other option. An option the learner does not
-have, or a bad value, is a ConfigError (exit 2).
+flag names a learner option (a field of the learner's Config) of the same name (``--iterations``
+-> ``iterations``, ``--max-condition`` -> ``max_condition``). Values are converted to the type of
+the option's default (``--hidden 32`` is the int 32 for a learner whose default width is an int,
+the tuple (32,) for one whose default is a tuple of widths). ``--option KEY=VALUE`` reaches any
+other option. An option the learner does not have, or a bad value, is a ConfigError (exit 2).
 """
 
 from __future__ import annotations
@@ -17,17 +16,9 @@ from typing import Any
 
 from lfd.errors import ConfigError
 
-# flag destination -> the learner option names it may stand for, first match wins
-FLAG_OPTIONS: dict[str, tuple[str, ...]] = {
-    "iters": ("iters", "iterations"),
-    "hidden": ("hidden",),
-    "activation": ("activation",),
-    "lr": ("lr",),
-    "solver": ("solver", "method"),
-    "adjoint": ("adjoint",),
-    "rate": ("rate",),
-    "max_condition": ("max_condition",),
-}
+# the flags of the "learner options" group: each one's destination is the learner option it sets
+FLAG_OPTIONS: tuple[str, ...] = ("iterations", "hidden", "activation", "lr", "solver", "adjoint", "rate",
+                                 "max_condition")
 _TRUE, _FALSE = {"1", "true", "yes", "on"}, {"0", "false", "no", "off"}
 
 
@@ -59,22 +50,22 @@ def learner_names() -> tuple[str, ...]:
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.commands import seed
+    from lfd.commands import DEMOS_HELP, seed
 
     names = learner_names()
     p = subparsers.add_parser("train", help="fit a learner to demos and save the model",
                               description=__doc__.split("\n\n")[0].splitlines()[0])
     p.add_argument("--learner", default="node", metavar="{" + ",".join(names) + "}",
                    help=f"learner: {', '.join(names)} (default node)")
-    p.add_argument("--demos", required=True, metavar="SPEC",
-                   help="spiral, spiral3d, lasa:NAME or a .csv/.npz file")
+    p.add_argument("--demos", required=True, metavar="SPEC", help=DEMOS_HELP)
     p.add_argument("--out", required=True, metavar="PATH", help="model file to write (e.g. model.pt)")
     p.add_argument("--seed", type=seed, default=0, help="random seed, 0 to 2^63 - 1 (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar (there is none unless "
                    "stderr is a terminal)")
     g = p.add_argument_group("learner options (left out: the learner's default; a learner "
                              "without the option refuses it)")
-    g.add_argument("--iters", type=int, help="training iterations (node: iters, contraction: iterations)")
+    g.add_argument("--iterations", type=int, help="training iterations (node: Adam steps, contraction: "
+                   "L-BFGS loss evaluations)")
     g.add_argument("--hidden", type=hidden_sizes, metavar="W1,W2,...",
                    help="hidden layer widths (node: a list; contraction: one width)")
     g.add_argument("--activation", help="activation function name (node)")
@@ -97,11 +88,10 @@ def learner_options(learner: str, args: argparse.Namespace) -> dict[str, Any]:
 
     defaults = _config_defaults(get_learner(learner).Config)
     options: dict[str, Any] = {}
-    for flag, names in FLAG_OPTIONS.items():
-        value = getattr(args, flag)
+    for name in FLAG_OPTIONS:
+        value = getattr(args, name)
         if value is not None:
-            name = next((n for n in names if n in defaults), names[0])
-            options[name] = _coerce(learner, f"--{flag}", value, defaults.get(name))
+            options[name] = _coerce(learner, f"--{name}", value, defaults.get(name))
     for key, text in args.option:
         options[key] = _coerce(learner, key, text, defaults.get(key))
     return options

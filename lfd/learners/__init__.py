@@ -78,10 +78,9 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
     history = cls.fit(module, normalize_demos(demos, norm), config, progress)
     if not history.get("interrupted"):
         _check_trained(learner, module, history)
-    lo, hi = demos.bounds()
-    history = {"train_time_s": time.perf_counter() - t0, "seed": seed,
-               "demo_box": [lo.tolist(), hi.tolist()], **history}
-    return cls.field_class(module, norm, learner, dataclasses.asdict(config), history)
+    history = {"train_time_s": time.perf_counter() - t0, "seed": seed, **history}
+    return cls.field_class(module, norm, learner, dataclasses.asdict(config), history,
+                           demo_box=demos.bounds())
 
 
 def _check_trained(learner: str, module: torch.nn.Module, history: dict[str, Any]) -> None:
@@ -114,7 +113,8 @@ def load(path: str, allow_nonfinite: bool = False) -> VelocityField:
         module = cls.build(dim, config).double()
         module.load_state_dict(payload["state_dict"])
         return cls.field_class(module, Normalization.from_dict(payload["normalization"]), cls.name,
-                               dataclasses.asdict(config), payload.get("history") or {})
+                               dataclasses.asdict(config), payload.get("history") or {},
+                               demo_box=payload.get("demo_box"))
     except Exception as e:  # noqa: BLE001  whatever a crafted config does to build: a bad file
         text = str(e).strip()
         reason = text.splitlines()[0][:200] if text else type(e).__name__

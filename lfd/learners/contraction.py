@@ -90,10 +90,11 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from lfd.demos import DemoSet
-from lfd.field import VelocityField
+from lfd.field import ContractingField, VelocityField
 from lfd.learners.base import Learner
 from lfd.learners.flows import BoundedFlow, bounded_flow_numpy
 from lfd.threads import torch_threads
+from lfd.validate import check_bools, check_ints
 
 DEFAULT_RATE = 0.5             # 1/s: below the ~1/s decay of 3-5 s demos, so it leaves room to fit them
 DEFAULT_MAX_CONDITION = 100.0  # b/a <= 100: the overshoot constant sqrt(b/a) is at most 10
@@ -157,14 +158,9 @@ class ContractionConfig:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v <= 1:
             raise ValueError(f"max_condition must be a number > 1 (or inf), got {v!r}")
         self.max_condition = float(v)
-        for name, high in (("layers", 64), ("hidden", 4096), ("iterations", 10**6), ("batch", 10**6),
-                           ("traj_points", 10**4)):
-            v = getattr(self, name)
-            low = 0 if name == "iterations" else 1
-            if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
-                raise ValueError(f"{name} must be an integer from {low} to {high}, got {v!r}")
-        if not isinstance(self.damping, bool):
-            raise ValueError(f"damping must be true or false, got {self.damping!r}")
+        check_ints(self, (("layers", 1, 64), ("hidden", 1, 4096), ("iterations", 0, 10**6), ("batch", 1, 10**6),
+                          ("traj_points", 1, 10**4)))
+        check_bools(self, ("damping",))
 
 
 class ContractionModule(nn.Module):
@@ -275,7 +271,7 @@ def lipschitz_bound(module: ContractionModule, grid: int = 4000) -> float:
     return a_norm * s_hi / s_lo + a_norm * s_hi / s_lo ** 2 * second
 
 
-class ContractionField(VelocityField):
+class ContractionField(ContractingField):
     """A field contracting by construction (Eq. (C1)), with its metric, rate and analytic bounds.
 
     ``rate`` is lambda in 1/s; ``metric(x)`` is M(x) in user units; ``metric_bounds`` (a, b) bound
@@ -283,11 +279,6 @@ class ContractionField(VelocityField):
     """
 
     module: ContractionModule
-
-    @property
-    def rate(self) -> float:
-        """The guaranteed contraction rate lambda, 1/s (the same in user and normalised time)."""
-        return float(self.config["rate"])
 
     @property
     def latent_matrix(self) -> np.ndarray:
@@ -301,12 +292,6 @@ class ContractionField(VelocityField):
         s_lo, s_hi = self.module.flow.singular_value_bounds()
         s2 = self.norm.scale ** 2
         return s_lo ** 2 / s2, s_hi ** 2 / s2
-
-    @property
-    def condition_bound(self) -> float:
-        """b/a, analytic, <= ``max_condition``; sqrt(b/a) is the overshoot constant of Eq. (C1)."""
-        a, b = self.metric_bounds
-        return b / a
 
     @property
     def lipschitz_bound(self) -> float:

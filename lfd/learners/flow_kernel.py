@@ -1,10 +1,11 @@
 """The compiled single-point evaluation of a contraction field, Eq. (C3), for control loops.
 
-``ContractionField.point_fn`` is called once per control step (500 Hz and more); the numpy version
+A contraction field's single-point evaluation is called once per control step (500 Hz and more); the numpy version
 (``lfd.learners.flows.bounded_flow_numpy``) costs ~30 numpy calls per point. This module fuses
 phi, J_phi (Eqs. (F1)-(F3)) and the d x d solve into one numba function (compiled once per
-machine; ``cache=True`` keeps the machine code beside this file). numba is imported lazily:
-``import lfd`` never pays for it.
+machine; ``cache=True`` keeps the machine code beside this file), made of small ``njit`` helpers
+(one swirl, one residual block) that numba inlines into it (``inline="always"``). This module is imported lazily (by
+``ContractionField``'s single-point evaluation), so ``import lfd`` never pays for numba.
 """
 
 from __future__ import annotations
@@ -13,104 +14,115 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+import numba
 import numpy as np
 
-_KERNEL: Any = None
+
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _rotation(gen: np.ndarray, k: int, ang: float, z: np.ndarray, rot: np.ndarray,
+              kz: np.ndarray) -> None:  # pragma: no cover - compiled
+    """rot (d, d) <- R = exp(ang K_k) (Rodrigues: I + sin(ang) K + (1 - cos(ang)) K^2) and kz (d,) <- K_k z,
+    for the generator K_k = gen[k] (d, d) (d = 2: the rotation by ang) and z (d,)."""
+    d = z.shape[0]
+    cs, sn = math.cos(ang), math.sin(ang)
+    if d == 2:
+        rot[0, 0], rot[0, 1], rot[1, 0], rot[1, 1] = cs, -sn, sn, cs
+        kz[0], kz[1] = -z[1], z[0]
+        return
+    for i in range(d):
+        kz[i] = 0.0
+        for j in range(d):
+            kk2 = 0.0
+            for m in range(d):
+                kk2 += gen[k, i, m] * gen[k, m, j]
+            rot[i, j] = (1.0 if i == j else 0.0) + sn * gen[k, i, j] + (1.0 - cs) * kk2
+            kz[i] += gen[k, i, j] * z[j]
 
 
-def _compile() -> Any:
-    import numba
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _swirl(y: np.ndarray, k: int, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
+           gen: np.ndarray, z: np.ndarray, kz: np.ndarray, rot: np.ndarray,
+           step: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Swirl k, Eq. (F1), in place: y (d,) <- c_k + R z with z = y - c_k, step (d, d) <- its Jacobian
+    J_k = R (I + q Kz z^T). z, kz (d,) and rot (d, d) are scratch."""
+    d = y.shape[0]
+    r2 = 0.0
+    for i in range(d):
+        z[i] = y[i] - centers[k, i]
+        r2 += z[i] * z[i]
+    ang = 0.0
+    q = 0.0
+    for j in range(theta.shape[1]):
+        te = theta[k, j] * math.exp(-r2 * inv_2rho2[k, j])
+        ang += te
+        q -= 2.0 * te * inv_2rho2[k, j]
+    _rotation(gen, k, ang, z, rot, kz)
+    for i in range(d):
+        for j in range(d):
+            s = rot[i, j]
+            for m in range(d):
+                s += rot[i, m] * q * kz[m] * z[j]
+            step[i, j] = s
+    for i in range(d):
+        s = centers[k, i]
+        for j in range(d):
+            s += rot[i, j] * z[j]
+        y[i] = s
 
-    @numba.njit(cache=True, fastmath=False, nogil=True)
-    def kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
-               gen: np.ndarray, w1b: np.ndarray, w2: np.ndarray, inv_r2: float,
-               a: np.ndarray, y_star: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-        d = x.shape[0]
-        n_pairs, n_comp = theta.shape
-        hidden = w1b.shape[1]
-        y = x.copy()
-        jac = np.eye(d)
-        z = np.empty(d)
-        kz = np.empty(d)
-        rot = np.empty((d, d))
-        step = np.empty((d, d))
-        th = np.empty(hidden)
-        h = np.empty(d)
-        for k in range(n_pairs):
-            # swirl, Eq. (F1)
-            r2 = 0.0
-            for i in range(d):
-                z[i] = y[i] - centers[k, i]
-                r2 += z[i] * z[i]
-            ang = 0.0
-            q = 0.0
-            for j in range(n_comp):
-                te = theta[k, j] * math.exp(-r2 * inv_2rho2[k, j])
-                ang += te
-                q -= 2.0 * te * inv_2rho2[k, j]
-            cs, sn = math.cos(ang), math.sin(ang)
-            if d == 2:
-                rot[0, 0], rot[0, 1], rot[1, 0], rot[1, 1] = cs, -sn, sn, cs
-                kz[0], kz[1] = -z[1], z[0]
-            else:
-                for i in range(d):
-                    kz[i] = 0.0
-                    for j in range(d):
-                        kk2 = 0.0
-                        for m in range(d):
-                            kk2 += gen[k, i, m] * gen[k, m, j]
-                        rot[i, j] = (1.0 if i == j else 0.0) + sn * gen[k, i, j] + (1.0 - cs) * kk2
-                        kz[i] += gen[k, i, j] * z[j]
-            # J_k = R (I + q Kz z'); y = c + R z
-            for i in range(d):
-                for j in range(d):
-                    s = rot[i, j]
-                    for m in range(d):
-                        s += rot[i, m] * q * kz[m] * z[j]
-                    step[i, j] = s
-            jac = step @ jac
-            for i in range(d):
-                s = centers[k, i]
-                for j in range(d):
-                    s += rot[i, j] * z[j]
-                y[i] = s
-            # residual block, Eq. (F3)
-            r2 = 0.0
-            for i in range(d):
-                r2 += y[i] * y[i]
-            env = math.exp(-0.5 * r2 * inv_r2)
-            for u in range(hidden):
-                s = w1b[k, u, d]
-                for i in range(d):
-                    s += w1b[k, u, i] * y[i]
-                th[u] = math.tanh(s)
-            for i in range(d):
-                s = 0.0
-                for u in range(hidden):
-                    s += w2[k, i, u] * th[u]
-                h[i] = s
-            for i in range(d):
-                for j in range(d):
-                    s = 0.0
-                    for u in range(hidden):
-                        s += w2[k, i, u] * (1.0 - th[u] * th[u]) * w1b[k, u, j]
-                    step[i, j] = (1.0 if i == j else 0.0) + env * (s - h[i] * y[j] * inv_r2)
-            jac = step @ jac
-            for i in range(d):
-                y[i] += env * h[i]
-        # Eq. (C3): J^-1 A (y - y*)
-        v = a @ (y - y_star)
-        return np.linalg.solve(jac, v)
 
-    return kernel
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _residual(y: np.ndarray, k: int, w1b: np.ndarray, w2: np.ndarray, inv_r2: float, th: np.ndarray,
+              h: np.ndarray, step: np.ndarray) -> None:  # pragma: no cover - compiled
+    """Residual block k, Eq. (F3), in place: y (d,) <- y + e(y) h(y), step (d, d) <- its Jacobian.
+    th (hidden,) and h (d,) are scratch."""
+    d = y.shape[0]
+    r2 = 0.0
+    for i in range(d):
+        r2 += y[i] * y[i]
+    env = math.exp(-0.5 * r2 * inv_r2)
+    for u in range(th.shape[0]):
+        s = w1b[k, u, d]
+        for i in range(d):
+            s += w1b[k, u, i] * y[i]
+        th[u] = math.tanh(s)
+    for i in range(d):
+        s = 0.0
+        for u in range(th.shape[0]):
+            s += w2[k, i, u] * th[u]
+        h[i] = s
+    for i in range(d):
+        for j in range(d):
+            s = 0.0
+            for u in range(th.shape[0]):
+                s += w2[k, i, u] * (1.0 - th[u] * th[u]) * w1b[k, u, j]
+            step[i, j] = (1.0 if i == j else 0.0) + env * (s - h[i] * y[j] * inv_r2)
+    for i in range(d):
+        y[i] += env * h[i]
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True)
+def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
+            gen: np.ndarray, w1b: np.ndarray, w2: np.ndarray, inv_r2: float,
+            a: np.ndarray, y_star: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """f_n(x) (d,) of Eq. (C3) at x (d,): y = phi(x) and J_phi through the swirl and residual blocks
+    (n_pairs of each; arrays as ``contraction_point_fn`` packs them), then J_phi^-1 A (y - y*)."""
+    d = x.shape[0]
+    y = x.copy()
+    jac = np.eye(d)
+    z, kz, h = np.empty(d), np.empty(d), np.empty(d)
+    rot, step = np.empty((d, d)), np.empty((d, d))
+    th = np.empty(w1b.shape[1])
+    for k in range(theta.shape[0]):
+        _swirl(y, k, centers, theta, inv_2rho2, gen, z, kz, rot, step)
+        jac = step @ jac
+        _residual(y, k, w1b, w2, inv_r2, th, h, step)
+        jac = step @ jac
+    return np.linalg.solve(jac, a @ (y - y_star))
 
 
 def kernel() -> Any:
-    """The compiled kernel (compiled or loaded from numba's cache on first use)."""
-    global _KERNEL
-    if _KERNEL is None:
-        _KERNEL = _compile()
-    return _KERNEL
+    """The compiled kernel (compiled, or loaded from numba's cache, on its first call)."""
+    return _kernel
 
 
 def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np.ndarray

@@ -57,6 +57,7 @@ from lfd.errors import ConfigError
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
 from lfd.threads import torch_threads
+from lfd.validate import check_bools, check_ints, check_positive, is_int, is_real
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "tanh": nn.Tanh, "relu": nn.ReLU, "softplus": nn.Softplus, "elu": nn.ELU, "silu": nn.SiLU,
@@ -74,7 +75,7 @@ class NodeConfig:
     """Options of the NODE learner (all JSON-able).
 
     hidden : widths of the hidden layers       activation : tanh, relu, softplus, elu or silu
-    lr, lr_final : Adam learning rate, cosine-annealed from lr to lr_final over ``iters``
+    lr, lr_final : Adam learning rate, cosine-annealed from lr to lr_final over ``iterations``
     solver : torchdiffeq method; ``substeps`` fixed steps per sample, ``rtol``/``atol`` if adaptive
     adjoint : backpropagate with odeint_adjoint (O(1) memory in the segment length, slower)
     seg : samples per shooting segment at the end; ``seg_start`` at the start, growing linearly
@@ -89,7 +90,7 @@ class NodeConfig:
     activation: str = "tanh"
     lr: float = 1e-2
     lr_final: float = 1e-4
-    iters: int = 2000
+    iterations: int = 2000
     solver: str = "rk4"
     substeps: int = 1
     rtol: float = 1e-5
@@ -106,7 +107,7 @@ class NodeConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.hidden, (list, tuple)) or not self.hidden \
-                or any(not _is_int(w) or w < 1 for w in self.hidden):
+                or any(not is_int(w) or w < 1 for w in self.hidden):
             raise ValueError(f"hidden must list at least one positive integer width, got {self.hidden!r}")
         self.hidden = tuple(int(w) for w in self.hidden)
         if self.activation not in ACTIVATIONS:
@@ -114,37 +115,22 @@ class NodeConfig:
         integrate.check_method(self.solver)  # ValueError naming the solvers of lfd.integrate.SOLVERS
         if self.dtype not in DTYPES:
             raise ValueError(f"dtype must be one of {', '.join(DTYPES)}, got '{self.dtype}'")
-        for name in ("lr", "lr_final", "rtol", "atol"):
-            value = getattr(self, name)
-            if not _is_real(value) or value <= 0:
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        check_positive(self, ("lr", "lr_final", "rtol", "atol"))
         if self.lr > MAX_LR:  # beyond it Adam's step overflows float32 (a traceback, not a model)
             raise ValueError(f"lr must be at most {MAX_LR:g}, got {self.lr!r}")
         if self.lr_final > self.lr:
             raise ValueError(f"lr_final ({self.lr_final}) must not exceed lr ({self.lr})")
-        if not _is_real(self.weight_decay) or self.weight_decay < 0:
+        if not is_real(self.weight_decay) or self.weight_decay < 0:
             raise ValueError(f"weight_decay must be a number >= 0, got {self.weight_decay!r}")
-        if not _is_real(self.curriculum) or not 0.0 <= self.curriculum <= 1.0:
+        if not is_real(self.curriculum) or not 0.0 <= self.curriculum <= 1.0:
             raise ValueError(f"curriculum must be a number in [0, 1], got {self.curriculum!r}")
-        for name, low in (("iters", 1), ("substeps", 1), ("seg", 2), ("seg_start", 2), ("batch", 0),
-                          ("samples", 0)):
-            value = getattr(self, name)
-            if not _is_int(value) or value < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        check_ints(self, (("iterations", 1, None), ("substeps", 1, None), ("seg", 2, None), ("seg_start", 2, None),
+                          ("batch", 0, None), ("samples", 0, None)))
         if self.seg_start > self.seg:
             raise ValueError(f"seg_start ({self.seg_start}) must not exceed seg ({self.seg})")
         if 0 < self.samples < self.seg:
             raise ValueError(f"samples ({self.samples}) must be at least seg ({self.seg})")
-        if not isinstance(self.adjoint, bool) or not isinstance(self.goal_equilibrium, bool):
-            raise ValueError("adjoint and goal_equilibrium must be true or false")
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _is_real(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        check_bools(self, ("adjoint", "goal_equilibrium"))
 
 
 class NodeMLP(nn.Module):
@@ -299,8 +285,8 @@ def uniform_grid(demos: DemoSet, samples: int = 0) -> tuple[np.ndarray, np.ndarr
 
 
 def segment_length(config: NodeConfig, k: int) -> int:
-    """S_k = round(seg_start + (seg - seg_start) min(1, k / (curriculum iters)))."""
-    ramp = config.curriculum * config.iters
+    """S_k = round(seg_start + (seg - seg_start) min(1, k / (curriculum iterations)))."""
+    ramp = config.curriculum * config.iterations
     frac = 1.0 if ramp <= 0 else min(1.0, k / ramp)
     return int(round(config.seg_start + (config.seg - config.seg_start) * frac))
 
@@ -338,7 +324,7 @@ class _Shooting:
         if config.adjoint:
             self.kwargs["adjoint_params"] = tuple(module.parameters())
         self.opt = torch.optim.Adam(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-        self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, T_max=config.iters,
+        self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, T_max=config.iterations,
                                                                 eta_min=config.lr_final)
 
     def loss(self, w: torch.Tensor, hb: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
@@ -387,8 +373,8 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
     segments: Segments | None = None
     try:
         with torch_threads(TRAIN_THREADS), \
-                tqdm(total=config.iters, desc=desc, disable=not progress, leave=False) as bar:
-            for k in range(config.iters):
+                tqdm(total=config.iterations, desc=desc, disable=not progress, leave=False) as bar:
+            for k in range(config.iterations):
                 seg = segment_length(config, k)
                 if segments is None or segments.windows.shape[0] != seg:
                     segments, best = Segments.of(x, h, seg), None
@@ -469,11 +455,17 @@ class NodeField(VelocityField):
         """x_n (d,) -> f(x_n) (d,): z_i = sigma(W_i z_{i-1} + b_i), f = W_L z_{L-1} + b_L - g(0)."""
         return _numpy_mlp(self._numpy_layers(), cast(NodeMLP, self.module).activation)
 
-    def point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
-        """x (d,) -> dx/dt (d,) in user units, a few us a call, on a snapshot of the weights.
+    def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The fast path for one point, for control loops: ``field(x)`` on x of shape (d,) calls it.
 
-        The normalisation x_n = (x - goal) / s, f = s f_n(x_n) is folded into the first and
-        last layers: W_1' = W_1 / s, b_1' = b_1 - W_1 goal / s, W_L' = s W_L, b_L' = s b_L.
+        A few us a call, on a snapshot of the weights. The normalisation x_n = (x - goal) / s,
+        f = s f_n(x_n) is folded into the first and last layers: W_1' = W_1 / s,
+        b_1' = b_1 - W_1 goal / s, W_L' = s W_L, b_L' = s b_L.
+
+        Returns
+        -------
+        callable
+            x, array of shape (d,), user units -> dx/dt, array of shape (d,), user units.
         """
         layers = self._numpy_layers()
         goal, s = self.norm.goal, float(self.norm.scale)

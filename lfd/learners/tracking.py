@@ -15,6 +15,16 @@ empirical cross-covariance C(s, 0) = cov_i(x_i(s), x_i(0)) and delta = x0 - r(0)
     Eq. (T2): r(s | x0) = r(s) + G(s) delta,   G(s) = C(s, 0) (C(0, 0) + sigma^2 I)^-1,
 
 so a start like a demo's start follows that demo's shape (G(0) ~ I, G(1) = 0: the goal is kept).
+The conditioning is a Gaussian model of the demos' starts, valid inside their spread only, so the
+offset is clamped to the ellipsoid of Mahalanobis radius rho (``start_radius``) of that model:
+
+    Eq. (T2a): delta_c = delta min(1, rho / |delta|_P),   |delta|_P = sqrt(delta' P delta),
+               P = (C(0, 0) + sigma^2 I)^-1,
+
+and Eq. (T2) uses delta_c. A start within the demos' spread (every demo start, |delta|_P < 2 for
+up to 5 demos) keeps its own offset and reproduces its demo's shape; a start further out follows
+the demo-like reference nearest to it and converges onto it at rate K (Eq. (T5)), so K, not
+the demos' pace, sets how fast it joins the demonstrated motion.
 
 The state is (x, s), s(0) = 0 (plus the constant delta with ``condition_start``): the phase s
 stands in for the time argument of the paper's Eq. (10), so the field stays autonomous. The field is
@@ -69,8 +79,9 @@ from torch import nn
 
 from lfd import integrate
 from lfd.demos import DemoSet
-from lfd.field import VelocityField
+from lfd.field import ContractingField, VelocityField
 from lfd.learners.base import Learner
+from lfd.validate import check_bools, check_ints, check_positive
 
 DEFAULT_RATE = 3.0            # K, 1/s
 ERROR_FLOOR = 1e-5            # normalised units: Eq. (T5) is checked as |e(t)| <= bound + floor (RK4 error)
@@ -94,6 +105,7 @@ class TrackingConfig:
     phase_stop : use h of Eq. (T4) (else h = 1: a time-indexed reference)
     condition_start : condition the reference on the start, Eq. (T2)
     start_noise : sigma of Eq. (T2), normalised units
+    start_radius : rho of Eq. (T2a), the Mahalanobis radius beyond which the offset is clamped (inf: never)
     """
 
     rate: float = DEFAULT_RATE
@@ -101,22 +113,18 @@ class TrackingConfig:
     table: int = 1024
     phase_tolerance: float = 0.3
     phase_stop: bool = True
-    condition_start: bool = False
+    condition_start: bool = True
     start_noise: float = 0.02
+    start_radius: float = 3.0
 
     def __post_init__(self) -> None:
-        for name in ("rate", "phase_tolerance", "start_noise"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
-            setattr(self, name, float(v))
-        for name, low in (("knots", 1), ("table", 16)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {v!r}")
-        for name in ("phase_stop", "condition_start"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        check_positive(self, ("rate", "phase_tolerance", "start_noise"), to_float=True)
+        check_ints(self, (("knots", 1, None), ("table", 16, None)))
+        check_bools(self, ("phase_stop", "condition_start"))
+        v = self.start_radius
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v <= 0:
+            raise ValueError(f"start_radius must be a positive number (or inf), got {v!r}")
+        self.start_radius = float(v)
 
 
 def _hermite_weights(w: Any, _unused: Any = None) -> tuple[Any, Any, Any, Any, Any, Any, Any, Any]:
@@ -153,6 +161,7 @@ class TrackingModule(nn.Module):
     gain: torch.Tensor
     dgain: torch.Tensor
     duration: torch.Tensor
+    start_precision: torch.Tensor
 
     def __init__(self, dim: int, config: TrackingConfig) -> None:
         super().__init__()
@@ -166,6 +175,21 @@ class TrackingModule(nn.Module):
         self.register_buffer("gain", torch.zeros(m, dim, dim))
         self.register_buffer("dgain", torch.zeros(m, dim, dim))
         self.register_buffer("duration", torch.ones(()))
+        self.register_buffer("start_precision", torch.zeros(dim, dim))     # P of Eq. (T2a)
+        self.start_radius = config.start_radius
+
+    def _load_from_state_dict(self, state_dict: dict[str, Any], prefix: str, *args: Any) -> None:
+        # model files written before Eq. (T2a) have no P: zeros, i.e. the offset is never clamped
+        state_dict.setdefault(prefix + "start_precision", torch.zeros_like(self.start_precision))
+        super()._load_from_state_dict(state_dict, prefix, *args)
+
+    def clamp_offset(self, delta: np.ndarray) -> np.ndarray:
+        """Eq. (T2a): delta_c = delta min(1, rho / |delta|_P), shape (B, d) -> (B, d)."""
+        prec = self.start_precision.numpy()
+        m = np.sqrt(np.maximum(np.einsum("bi,ij,bj->b", delta, prec, delta), 0.0))
+        with np.errstate(divide="ignore"):
+            scale = np.minimum(1.0, self.start_radius / m)
+        return delta * scale[:, None]
 
     def reference(self, s: torch.Tensor, delta: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """r(s | x0) and r'(s | x0) of Eqs. (T1)-(T2), each (B, d), at phases s, shape (B,),
@@ -208,7 +232,7 @@ class TrackingModule(nn.Module):
         return self.velocity(x, s)[0]
 
 
-class TrackingField(VelocityField):
+class TrackingField(ContractingField):
     """A field contracting toward a learned reference motion, in phase (module docstring).
 
     The state is (x, s). ``rollout`` integrates both from s = 0 and returns x; ``velocity(x, s)``
@@ -218,22 +242,12 @@ class TrackingField(VelocityField):
 
     module: TrackingModule
 
-    # ---- the contraction certificate's constants
-    @property
-    def rate(self) -> float:
-        """K of Eq. (T3), 1/s."""
-        return float(self.config["rate"])
-
+    # ---- the contraction certificate's constants (``rate`` is K of Eq. (T3), 1/s)
     @property
     def metric_bounds(self) -> tuple[float, float]:
-        """(a, b) with a I <= M <= b I: the Euclidean metric, (1, 1)."""
+        """(a, b) with a I <= M <= b I: the Euclidean metric, (1, 1), so b / a = 1 and the
+        overshoot factor sqrt(b / a) of Eq. (18) is 1."""
         return 1.0, 1.0
-
-    @property
-    def condition_bound(self) -> float:
-        """b / a = 1: the overshoot factor sqrt(b / a) of Eq. (18) is 1."""
-        a, b = self.metric_bounds
-        return b / a
 
     @property
     def lipschitz_bound(self) -> float:
@@ -267,10 +281,11 @@ class TrackingField(VelocityField):
         return 0.0
 
     def start_offset(self, x0: np.ndarray) -> np.ndarray | None:
-        """delta = x0_n - r(0) of Eq. (T2) in normalised units, shape (B, d), or None if unconditioned."""
+        """delta_c of Eq. (T2a) (delta = x0_n - r(0), clamped), normalised units, shape (B, d), or None
+        if unconditioned."""
         if not self.conditioned:
             return None
-        return self.norm.to_norm(np.atleast_2d(x0)) - self.module.ref[0].numpy()
+        return self.module.clamp_offset(self.norm.to_norm(np.atleast_2d(x0)) - self.module.ref[0].numpy())
 
     def reference(self, s: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         """r(s) (or r(s | x0)) in user units: s : array, shape (P,) -> shape (P, d)."""
@@ -445,10 +460,11 @@ class TrackingLearner(Learner):
         n, d = demos.n_demos, demos.dim
         gain = np.zeros((m, d, d))
         dgain = np.zeros((m, d, d))
+        prec = np.zeros((d, d))
         if config.condition_start and n > 1:
             dev, ddev = xs - ref, dxs - dref                           # (N, M, d)
             c00 = dev[:, 0].T @ dev[:, 0] / (n - 1)
-            inv = np.linalg.inv(c00 + config.start_noise ** 2 * np.eye(d))
+            inv = prec = np.linalg.inv(c00 + config.start_noise ** 2 * np.eye(d))
             gain = np.einsum("nmi,nj->mij", dev, dev[:, 0]) / (n - 1) @ inv
             dgain = np.einsum("nmi,nj->mij", ddev, dev[:, 0]) / (n - 1) @ inv
         with torch.no_grad():
@@ -456,6 +472,7 @@ class TrackingLearner(Learner):
             module.dref.copy_(torch.tensor(dref))
             module.gain.copy_(torch.tensor(gain))
             module.dgain.copy_(torch.tensor(dgain))
+            module.start_precision.copy_(torch.tensor(prec))
             module.duration.fill_(float(np.mean(demos.t[:, -1] - demos.t[:, 0])))
         # residuals at the demo samples
         s_all = (demos.t - demos.t[:, :1]) / (demos.t[:, -1:] - demos.t[:, :1])
@@ -490,8 +507,8 @@ def check_tracking_contraction(field: TrackingField, lo: np.ndarray | None = Non
     2. Error decay: from ``n_starts`` random starts in the box, the closed-loop (x, s) rollout
        (Eqs. (T3)-(T4), RK4, 2 ``steps`` steps over ``horizon``, default 1.5 T) must keep
        |x(t) - r(s(t))| <= |x(0) - r(0)| exp(-K t) + ERROR_FLOOR (normalised units), Eq. (T5).
-    The Jacobian bound holds within ``tolerance`` (relative). The box defaults to the demos' box
-    grown by 50%.
+    The Jacobian bound holds within ``tolerance`` (relative). The box [lo, hi], arrays of shape (d,),
+    user units, defaults to the training demos' box (``field.demo_box``) grown by 50%.
 
     Also reported, not checked: ``coupled_worst_eig``, max eig(sym(J)) of the closed-loop x-Jacobian
     with s_dot = h(|x - r(s)|) / T differentiated too (the phase coupling of Eq. (T4)).
@@ -504,7 +521,9 @@ def check_tracking_contraction(field: TrackingField, lo: np.ndarray | None = Non
     ``n_points``, ``n_starts``, ``box`` [lo, hi] (user units).
     """
     if lo is None or hi is None:
-        blo, bhi = (np.asarray(v, dtype=np.float64) for v in field.history["demo_box"])
+        if field.demo_box is None:
+            raise ValueError("the field stores no demo box: give lo and hi")
+        blo, bhi = field.demo_box
         pad = (bhi - blo) * 0.25
         lo, hi = blo - pad, bhi + pad
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)

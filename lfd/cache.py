@@ -1,4 +1,5 @@
-"""A cache of trained fields for the scripts: train once per (learner, demos, seed, options).
+"""A cache of trained fields for the scripts and the arm simulation (``scripts/demo_arm.py``,
+``scripts/sweep_arm.py``, the benchmarks): train once per (learner, demos, seed, options).
 
 The file is ``<cache_dir>/<learner>-<key>.pt`` with key the first 16 hex digits of
 sha256(JSON of learner, seed, the learner's full config (its defaults filled in) and the sha256
@@ -48,9 +49,31 @@ def cached_field(learner: str, demos: DemoSet, seed: int = 0, options: dict[str,
                  progress: bool = False, verbose: bool = True) -> tuple[VelocityField, Path, bool]:
     """The field of ``lfd.train(learner, demos, seed, **options)``, from the cache when present.
 
-    Returns (field, model file, trained now?). ``verbose``: say on stderr when a cached file is
-    unreadable and trained again. Raises KeyboardInterrupt, storing nothing, when the training
-    was interrupted (the learner returned a partly trained field).
+    Parameters
+    ----------
+    learner : str
+        A learner name (``lfd.LEARNERS``).
+    demos : DemoSet
+        The demonstrations, t (N, T) and x (N, T, d).
+    seed : int
+    options : dict, optional
+        The learner's keyword options.
+    directory : path, optional
+        The cache folder (default ``cache_dir()``).
+    progress : bool
+        A training progress bar.
+    verbose : bool
+        Say on stderr when a cached file is unreadable and trained again.
+
+    Returns
+    -------
+    (VelocityField, Path, bool)
+        The field, its model file, and whether it was trained now.
+
+    Raises
+    ------
+    KeyboardInterrupt
+        Storing nothing, when the training was interrupted (the learner returned a partly trained field).
     """
     options = dict(options or {})
     path = Path(directory or cache_dir()) / f"{learner}-{cache_key(learner, demos, seed, options)}.pt"

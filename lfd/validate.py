@@ -1,0 +1,56 @@
+"""Checks of option values, shared by the learners' configs and the LASA benchmark protocol.
+
+Each check reads the named attributes of a config object (a dataclass in its ``__post_init__``)
+and raises ``error`` (ValueError unless given; ``Learner.make_config`` turns it into a
+ConfigError) with one line naming the option, the rule and the value. A bool is never taken for a
+number.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import Any
+
+
+def is_int(value: Any) -> bool:
+    """An int that is not a bool."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def is_real(value: Any) -> bool:
+    """A finite int or float that is not a bool."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_ints(obj: Any, bounds: Iterable[tuple[str, int, int | None]],
+               error: type[Exception] = ValueError) -> None:
+    """Each attribute ``name`` of ``obj`` must be an integer in [low, high] (high None: no upper bound).
+
+    bounds : (name, low, high) triples; the message reads ``name must be an integer >= low`` or
+    ``... from low to high``, then the value.
+    """
+    for name, low, high in bounds:
+        value = getattr(obj, name)
+        if not is_int(value) or value < low or (high is not None and value > high):
+            rule = f">= {low}" if high is None else f"from {low} to {high}"
+            raise error(f"{name} must be an integer {rule}, got {value!r}")
+
+
+def check_positive(obj: Any, names: Iterable[str], to_float: bool = False) -> None:
+    """Each attribute of ``obj`` in ``names`` must be a finite number > 0 (ValueError); with
+    ``to_float`` it is stored back as a float."""
+    for name in names:
+        value = getattr(obj, name)
+        if not is_real(value) or value <= 0:
+            raise ValueError(f"{name} must be a positive number, got {value!r}")
+        if to_float:
+            setattr(obj, name, float(value))
+
+
+def check_bools(obj: Any, names: Iterable[str]) -> None:
+    """Each attribute of ``obj`` in ``names`` must be True or False (ValueError)."""
+    for name in names:
+        value = getattr(obj, name)
+        if not isinstance(value, bool):
+            raise ValueError(f"{name} must be true or false, got {value!r}")

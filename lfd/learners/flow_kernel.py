@@ -100,24 +100,78 @@ def _residual(y: np.ndarray, k: int, w1b: np.ndarray, w2: np.ndarray, inv_r2: fl
         y[i] += env * h[i]
 
 
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _left_multiply(step: np.ndarray, jac: np.ndarray, tmp: np.ndarray) -> None:  # pragma: no cover - compiled
+    """jac (d, d) <- step @ jac in place; tmp (d, d) is scratch (no allocation)."""
+    d = jac.shape[0]
+    for i in range(d):
+        for j in range(d):
+            s = 0.0
+            for m in range(d):
+                s += step[i, m] * jac[m, j]
+            tmp[i, j] = s
+    for i in range(d):
+        for j in range(d):
+            jac[i, j] = tmp[i, j]
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _solve_small(jac: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """out (d,) <- jac^-1 b for d = 2 or 3 by Cramer's rule (J_phi is well conditioned by
+    construction: its singular values lie in [s_lo, s_hi], Eq. (F4))."""
+    if jac.shape[0] == 2:
+        det = jac[0, 0] * jac[1, 1] - jac[0, 1] * jac[1, 0]
+        out[0] = (b[0] * jac[1, 1] - jac[0, 1] * b[1]) / det
+        out[1] = (jac[0, 0] * b[1] - b[0] * jac[1, 0]) / det
+        return
+    c00 = jac[1, 1] * jac[2, 2] - jac[1, 2] * jac[2, 1]
+    c01 = jac[1, 2] * jac[2, 0] - jac[1, 0] * jac[2, 2]
+    c02 = jac[1, 0] * jac[2, 1] - jac[1, 1] * jac[2, 0]
+    det = jac[0, 0] * c00 + jac[0, 1] * c01 + jac[0, 2] * c02
+    c10 = jac[0, 2] * jac[2, 1] - jac[0, 1] * jac[2, 2]
+    c11 = jac[0, 0] * jac[2, 2] - jac[0, 2] * jac[2, 0]
+    c12 = jac[0, 1] * jac[2, 0] - jac[0, 0] * jac[2, 1]
+    c20 = jac[0, 1] * jac[1, 2] - jac[0, 2] * jac[1, 1]
+    c21 = jac[0, 2] * jac[1, 0] - jac[0, 0] * jac[1, 2]
+    c22 = jac[0, 0] * jac[1, 1] - jac[0, 1] * jac[1, 0]
+    out[0] = (c00 * b[0] + c10 * b[1] + c20 * b[2]) / det
+    out[1] = (c01 * b[0] + c11 * b[1] + c21 * b[2]) / det
+    out[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
+
+
 @numba.njit(cache=True, fastmath=False, nogil=True)
 def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
             gen: np.ndarray, w1b: np.ndarray, w2: np.ndarray, inv_r2: float,
-            a: np.ndarray, y_star: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """f_n(x) (d,) of Eq. (C3) at x (d,): y = phi(x) and J_phi through the swirl and residual blocks
-    (n_pairs of each; arrays as ``contraction_point_fn`` packs them), then J_phi^-1 A (y - y*)."""
+            a: np.ndarray, y_star: np.ndarray, goal: np.ndarray, scale: float, vec: np.ndarray,
+            mat: np.ndarray, th: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """scale f_n((x - goal) / scale) (d,) of Eq. (C3) at x (d,): y = phi(x_n) and J_phi through the
+    swirl and residual blocks (n_pairs of each; arrays as ``contraction_point_fn`` packs them), then
+    J_phi^-1 A (y - y*), back in user units (goal = 0 and scale = 1: normalised units).
+
+    vec (6, d), mat (4, d, d) and th (hidden,) are scratch, allocated once per evaluator: the only
+    allocation per call is the returned array."""
     d = x.shape[0]
-    y = x.copy()
-    jac = np.eye(d)
-    z, kz, h = np.empty(d), np.empty(d), np.empty(d)
-    rot, step = np.empty((d, d)), np.empty((d, d))
-    th = np.empty(w1b.shape[1])
+    y, z, kz, h, b = vec[0], vec[1], vec[2], vec[3], vec[4]
+    jac, rot, step, tmp = mat[0], mat[1], mat[2], mat[3]
+    for i in range(d):
+        y[i] = (x[i] - goal[i]) / scale
+        for j in range(d):
+            jac[i, j] = 1.0 if i == j else 0.0
     for k in range(theta.shape[0]):
         _swirl(y, k, centers, theta, inv_2rho2, gen, z, kz, rot, step)
-        jac = step @ jac
+        _left_multiply(step, jac, tmp)
         _residual(y, k, w1b, w2, inv_r2, th, h, step)
-        jac = step @ jac
-    return np.linalg.solve(jac, a @ (y - y_star))
+        _left_multiply(step, jac, tmp)
+    for i in range(d):
+        s = 0.0
+        for j in range(d):
+            s += a[i, j] * (y[j] - y_star[j])
+        b[i] = s
+    out = np.empty(d)
+    _solve_small(jac, b, out)
+    for i in range(d):
+        out[i] *= scale
+    return out
 
 
 def kernel() -> Any:
@@ -125,11 +179,15 @@ def kernel() -> Any:
     return _kernel
 
 
-def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np.ndarray
+def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np.ndarray,
+                         goal: np.ndarray | None = None, scale: float = 1.0
                          ) -> Callable[[np.ndarray], np.ndarray]:
-    """x_n (d,) -> f_n(x_n) (d,) of Eq. (C3) through the compiled kernel.
+    """x (d,) -> scale f_n((x - goal) / scale) (d,) of Eq. (C3) through the compiled kernel: the field
+    in user units given the normalisation (goal, scale), in normalised units by default.
 
-    params : ``BoundedFlow.numpy_params()``; a : A of Eq. (C2), (d, d); y_star : phi(0), (d,).
+    params : ``BoundedFlow.numpy_params()``; a : A of Eq. (C2), (d, d); y_star : phi(0), (d,);
+    goal : (d,) (default 0); scale : > 0.
+    The evaluator owns scratch memory: one evaluator is for one thread.
     """
     d = len(y_star)
     centers = np.ascontiguousarray(np.stack([p["c"] for p in params]))
@@ -141,10 +199,13 @@ def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np
     inv_r2 = float(params[0]["inv_r2"])
     a = np.ascontiguousarray(a, dtype=np.float64)
     y_star = np.ascontiguousarray(y_star, dtype=np.float64)
+    goal_ = np.zeros(d) if goal is None else np.ascontiguousarray(goal, dtype=np.float64).copy()
+    scale_ = float(scale)
+    vec, mat, th = np.empty((6, d)), np.empty((4, d, d)), np.empty(w1b.shape[1])   # the kernel's scratch
     k = kernel()
 
     def f(xn: np.ndarray) -> np.ndarray:
         return k(np.ascontiguousarray(xn, dtype=np.float64), centers, theta, inv_2rho2, gen, w1b, w2,
-                 inv_r2, a, y_star)
+                 inv_r2, a, y_star, goal_, scale_, vec, mat, th)
 
     return f

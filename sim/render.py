@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import math
 import os
-import queue
-import threading
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -204,47 +202,13 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
         with atomic_path(path, suffix=".mp4") as tmp, \
                 mediapy.VideoWriter(str(tmp), shape=(height, width), fps=fps, crf=23,
                                     ffmpeg_args=["-preset", "veryfast"]) as w:
-            n = _pipelined(frames, w.add_image)
+            for f in frames:
+                w.add_image(f)
+                n += 1
     except (OSError, RuntimeError, ValueError) as e:
         if _interrupted(e):  # Ctrl-C also killed ffmpeg, and closing it then failed
             raise KeyboardInterrupt from None
         raise RenderError(f"{path}: cannot write the video ({(str(e).splitlines() or [''])[0]})") from None
-    return n
-
-
-def _pipelined(frames: Iterable[np.ndarray], sink: Any, depth: int = 4) -> int:
-    """Feed ``frames`` to ``sink`` from a second thread, so that rendering the next frame (this
-    thread: GL, overlays) overlaps handing this one to ffmpeg (a pipe write that releases the GIL).
-    At most ``depth`` frames wait. An error in ``sink`` is raised here; on any exception here
-    (Ctrl-C included) the frames already queued are written before it propagates. Returns the
-    number of frames produced."""
-    q: queue.Queue[np.ndarray | None] = queue.Queue(maxsize=depth)
-    failed: list[BaseException] = []
-
-    def consume() -> None:
-        item = q.get()
-        while item is not None:
-            if not failed:
-                try:
-                    sink(item)
-                except BaseException as e:  # noqa: BLE001  re-raised in the producing thread
-                    failed.append(e)
-            item = q.get()
-
-    worker = threading.Thread(target=consume, name="video-writer", daemon=True)
-    worker.start()
-    n = 0
-    try:
-        for f in frames:
-            if failed:
-                break
-            q.put(f)
-            n += 1
-    finally:
-        q.put(None)
-        worker.join()
-    if failed:
-        raise failed[0]
     return n
 
 

@@ -71,7 +71,7 @@ try:
     import numpy as np  # noqa: E402
 
     import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
-    from robots import ACTUATIONS  # noqa: E402
+    from robots.loader import ACTUATIONS  # noqa: E402
     from sim.camera import CameraSpec  # noqa: E402
     from sim.experiment import scenario  # noqa: E402
 except KeyboardInterrupt:  # Ctrl-C during the start-up imports: no traceback

@@ -39,8 +39,8 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from robots import ACTUATIONS as ACTUATIONS  # re-exported: the actuations a robot is loaded with
 from robots import DifferentialIK, RobotModel
+from robots.loader import ACTUATIONS as ACTUATIONS  # re-exported: the actuations a robot is loaded with
 from sim.errors import SimError
 from sim.placement import Placement
 

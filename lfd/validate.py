@@ -37,13 +37,15 @@ def check_ints(obj: Any, bounds: Iterable[tuple[str, int, int | None]],
             raise error(f"{name} must be an integer {rule}, got {value!r}")
 
 
-def check_positive(obj: Any, names: Iterable[str], to_float: bool = False) -> None:
-    """Each attribute of ``obj`` in ``names`` must be a finite number > 0 (ValueError); with
-    ``to_float`` it is stored back as a float."""
+def check_positive(obj: Any, names: Iterable[str], to_float: bool = False, allow_inf: bool = False) -> None:
+    """Each attribute of ``obj`` in ``names`` must be a finite number > 0 (ValueError), or +inf
+    with ``allow_inf``; with ``to_float`` it is stored back as a float."""
     for name in names:
         value = getattr(obj, name)
-        if not is_real(value) or value <= 0:
-            raise ValueError(f"{name} must be a positive number, got {value!r}")
+        inf = allow_inf and isinstance(value, float) and value == math.inf
+        if not (inf or is_real(value)) or value <= 0:
+            raise ValueError(f"{name} must be a positive number{' (or inf)' if allow_inf else ''}, "
+                             f"got {value!r}")
         if to_float:
             setattr(obj, name, float(value))
 

@@ -335,28 +335,21 @@ class ContractionField(ContractingField):
         xn = self.module.trajectory(torch.tensor(self.norm.to_norm(x0)), tt).numpy()
         return self.norm.from_norm(xn)
 
-    def _compiled(self, goal: np.ndarray | None, scale: float) -> Callable[[np.ndarray], np.ndarray]:
-        """Eq. (C3) for one point: the normalisation, phi, J_phi and the d x d solve in one compiled
-        call (``lfd.learners.flow_kernel``); the numpy twin is ``bounded_flow_numpy``."""
+    def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
+        """x (d,) -> f(x) (d,) in user units: the normalisation, phi, J_phi and the d x d solve of
+        Eq. (C3) in one compiled call (``lfd.learners.flow_kernel``; ``scripts/bench_field.py``
+        measures it; see ``VelocityField.single_point_evaluator``). The numpy twin of phi and J_phi
+        is ``bounded_flow_numpy``."""
         from lfd.learners.flow_kernel import contraction_point_fn
 
         params = self.module.flow.numpy_params()
         y_star, _ = bounded_flow_numpy(params, np.zeros(self.dim))
-        f = contraction_point_fn(params, self.latent_matrix, y_star, goal, scale)
+        f = contraction_point_fn(params, self.latent_matrix, y_star, self.norm.goal, float(self.norm.scale))
         f(np.zeros(self.dim))            # compile or load the kernel now, not in the first control step
         return f
 
-    def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
-        """x (d,) -> f(x) (d,) in user units, the normalisation inside the compiled kernel
-        (``scripts/bench_field.py`` measures it; see ``VelocityField.single_point_evaluator``)."""
-        return self._compiled(self.norm.goal, float(self.norm.scale))
-
-    def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
-        """Eq. (C3) for one point in normalised units, compiled (``_compiled``)."""
-        return self._compiled(None, 1.0)
-
     def numpy_point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
-        """The same as ``_point_fn_normalized`` in plain numpy (no compilation), normalised units."""
+        """Eq. (C3) for one point in plain numpy (no compilation), normalised units: x_n (d,) -> f_n (d,)."""
         params = self.module.flow.numpy_params()
         a = self.latent_matrix
         y_star, _ = bounded_flow_numpy(params, np.zeros(self.dim))

@@ -148,7 +148,7 @@ def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np
     swirl and residual blocks (n_pairs of each; arrays as ``contraction_point_fn`` packs them), then
     J_phi^-1 A (y - y*), back in user units (goal = 0 and scale = 1: normalised units).
 
-    vec (6, d), mat (4, d, d) and th (hidden,) are scratch, allocated once per evaluator: the only
+    vec (5, d), mat (4, d, d) and th (hidden,) are scratch, allocated once per evaluator: the only
     allocation per call is the returned array."""
     d = x.shape[0]
     y, z, kz, h, b = vec[0], vec[1], vec[2], vec[3], vec[4]
@@ -201,7 +201,7 @@ def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np
     y_star = np.ascontiguousarray(y_star, dtype=np.float64)
     goal_ = np.zeros(d) if goal is None else np.ascontiguousarray(goal, dtype=np.float64).copy()
     scale_ = float(scale)
-    vec, mat, th = np.empty((6, d)), np.empty((4, d, d)), np.empty(w1b.shape[1])   # the kernel's scratch
+    vec, mat, th = np.empty((5, d)), np.empty((4, d, d)), np.empty(w1b.shape[1])   # the kernel's scratch
     k = kernel()
 
     def f(xn: np.ndarray) -> np.ndarray:

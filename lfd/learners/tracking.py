@@ -121,10 +121,7 @@ class TrackingConfig:
         check_positive(self, ("rate", "phase_tolerance", "start_noise"), to_float=True)
         check_ints(self, (("knots", 1, None), ("table", 16, None)))
         check_bools(self, ("phase_stop", "condition_start"))
-        v = self.start_radius
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v <= 0:
-            raise ValueError(f"start_radius must be a positive number (or inf), got {v!r}")
-        self.start_radius = float(v)
+        check_positive(self, ("start_radius",), to_float=True, allow_inf=True)
 
 
 def _hermite_weights(w: Any, _unused: Any = None) -> tuple[Any, Any, Any, Any, Any, Any, Any, Any]:

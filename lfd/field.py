@@ -239,6 +239,17 @@ class FieldWrapper:
         return dict(getattr(self.field, "history", {}))
 
     @property
+    def config(self) -> Any:
+        """The nominal field's training options (None for a field without them)."""
+        return getattr(self.field, "config", None)
+
+    @property
     def demo_box(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The nominal field's training-demo box (lo, hi), each shape (d,), or None."""
         return getattr(self.field, "demo_box", None)
+
+    def goal_at(self, t: float) -> np.ndarray:
+        """The goal at time t [s], shape (d,): the wrapped field's ``goal_at`` (a moving goal,
+        ``lfd.goal``), else its fixed goal."""
+        inner = getattr(self.field, "goal_at", None)
+        return np.asarray(inner(t) if inner is not None else self.field.goal, dtype=np.float64)

@@ -296,9 +296,9 @@ def rk4_step(f: Callable[[np.ndarray, float], np.ndarray], x: np.ndarray, t: flo
     return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
-def rk4(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, t: np.ndarray,
-        substeps: int = 1) -> np.ndarray:
-    """Classic RK4 (Eq. (8)) of the autonomous dx/dt = f(x) on one point, in numpy.
+def rk4(f: Callable[..., np.ndarray], x0: np.ndarray, t: np.ndarray,
+        substeps: int = 1, timed: bool = False) -> np.ndarray:
+    """Classic RK4 (Eq. (8)) of dx/dt = f(x) (or of dx/dt = f(x, t) when ``timed``) on one point, in numpy.
 
     For a field's single-point evaluator (``VelocityField.single_point_evaluator``, a few us a call): over
     thousands of control steps it is far faster than the batched torch ``rollout``.
@@ -306,13 +306,16 @@ def rk4(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, t: np.ndarray,
     Parameters
     ----------
     f : callable
-        x, shape (d,) -> dx/dt, shape (d,).
+        x, shape (d,) -> dx/dt, shape (d,); with ``timed``, (x, t [s]) -> dx/dt (a time-varying
+        field: a moving goal, ``lfd.goal``, or moving obstacles, ``lfd.obstacles``).
     x0 : array, shape (d,)
         The start.
     t : array, shape (T,)
         Output times, s; ``substeps`` equal steps per interval.
     substeps : int
         Steps per interval of t, >= 1.
+    timed : bool
+        Whether f takes the time as its second argument.
 
     Returns
     -------
@@ -324,13 +327,14 @@ def rk4(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, t: np.ndarray,
 
     def g(y: np.ndarray, _t: float) -> np.ndarray:
         return f(y)
+    step_fn = f if timed else g
 
     out = np.empty((len(t), len(x)))
     out[0] = x
     for k in range(1, len(t)):
         h = (t[k] - t[k - 1]) / substeps
         for j in range(substeps):
-            x = rk4_step(g, x, t[k - 1] + j * h, h)
+            x = rk4_step(step_fn, x, t[k - 1] + j * h, h)
         out[k] = x
     return out
 

@@ -156,6 +156,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "capsule:x1,y1[,z1],x2,y2[,z2],r, optionally ';margin=M'. The fields avoid it "
                         "(lfd.avoid), the scene holds it as a MuJoCo geom, and each run reports its "
                         "robot-obstacle contacts and smallest clearance")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--goal-shift", metavar="T:DX,DY[,DZ]",
+                   help="move the goal by DX (task units) at time T (s) of every run, blended in over "
+                        "0.5 s (lfd.goal.shift_goal); the fields re-centre on it during the run")
+    g.add_argument("--goal-path", metavar="FILE",
+                   help="the goal follows this trajectory during every run: CSV rows t,x,y[,z] (task "
+                        "units) or NPZ with t (T,) and x (T, d) (lfd.goal.follow_goal_path)")
     p.add_argument("--control-hz", type=float, default=500.0, help="control rate in Hz (default 500)")
     p.add_argument("--iters", type=int, help="training iterations (default: the learner's)")
     p.add_argument("--quiet", action="store_true", help="print only the results table and errors "
@@ -415,6 +422,7 @@ def run(args: argparse.Namespace) -> int:
     plan = plan_outputs(args, out, json_path, planned, outputs, inputs)
     demos = lfd.load_demos(args.demos)
     obstacles = [parse_obstacle(text, demos.dim) for text in args.obstacle]
+    goal_motion = parse_goal_motion(args, demos.dim)
     for o in obstacles:
         if float(o.gamma(demos.goal)) < 1.01:
             raise lfd.ConfigError(f"the demos' goal lies inside or too close to the {o.describe()}")
@@ -431,6 +439,8 @@ def run(args: argparse.Namespace) -> int:
         robot = with_obstacles(robot, obstacles, exp.placement)
         exp = sim.Experiment(robot, demos, placement=exp.placement, control_hz=args.control_hz, ik=args.ik,
                              fps=args.fps)
+    if goal_motion is not None:
+        check_goal_motion(goal_motion, exp, demos)
     pushes = "push" in args.perturb or args.side_by_side == "push" or args.grid
     if pushes and args.push_start + args.push_duration > exp.duration_s:
         raise lfd.ConfigError(f"the push ends at {args.push_start + args.push_duration:g} s, after the run "
@@ -466,10 +476,13 @@ def run(args: argparse.Namespace) -> int:
     for name, field in fields.items():
         if field.dim != demos.dim:
             raise lfd.ConfigError(f"the {name} model is {field.dim}-D but the demos {demos.name} are {demos.dim}-D")
-    if obstacles:
-        for name, field in fields.items():
-            if hasattr(field, "rollout_with_phase"):
-                raise lfd.ConfigError(f"--obstacle does not apply to the {name} learner yet (its phase state)")
+    for name, field in fields.items():
+        if (obstacles or goal_motion is not None) and hasattr(field, "rollout_with_phase"):
+            flag = "--obstacle" if obstacles else "--goal-shift/--goal-path"
+            raise lfd.ConfigError(f"{flag} does not apply to the {name} learner yet (its phase state)")
+        if goal_motion is not None:
+            field = fields[name] = moving(field, goal_motion)
+        if obstacles:
             fields[name] = lfd.avoid(field, obstacles)
     if main_learners != planned:  # --model named its own learner: the planned names follow it
         plan = plan_outputs(args, out, json_path, main_learners, Outputs(), inputs)
@@ -514,6 +527,61 @@ def run(args: argparse.Namespace) -> int:
     n_videos = len(plan.videos) + (plan.side_by_side is not None) + (plan.grid is not None)
     print(f"wrote {json_path}" + ("" if args.no_video else f" and {n_videos} video(s) into {out}"))
     return 0
+
+
+def parse_goal_motion(args: argparse.Namespace, dim: int) -> tuple[str, Any] | None:
+    """The goal's motion of --goal-shift (``("shift", (t, dx))``) or --goal-path (``("path", (times,
+    goals))``), read and checked (``lfd.ConfigError``), or None."""
+    import lfd
+    from lfd import goal as moving_goal
+
+    if args.goal_shift:
+        return "shift", moving_goal.parse_goal_shift(args.goal_shift, dim)
+    if args.goal_path:
+        times, goals = moving_goal.load_goal_path(args.goal_path)
+        if goals.ndim != 2 or goals.shape[1] != dim:
+            raise lfd.ConfigError(f"--goal-path {args.goal_path}: {goals.shape[-1]}-D goals for {dim}-D demos")
+        return "path", (times, goals)
+    return None
+
+
+def check_goal_motion(motion: tuple[str, Any], exp: Any, demos: Any) -> None:
+    """Every goal the run will visit must be reachable, and a shift must come before the run ends."""
+    import lfd
+    from sim.errors import PlacementError
+
+    kind, spec = motion
+    if kind == "shift":
+        t, dx = spec
+        if t >= exp.duration_s:
+            raise lfd.ConfigError(f"--goal-shift at t = {t:g} s comes after the run ends ({exp.duration_s:g} s)")
+        goals = np.stack([demos.goal, demos.goal + dx])
+    else:
+        goals = spec[1]
+    try:
+        exp.placement.check_reachable(exp.robot, goals, rotation=exp.rotation_ref)
+    except PlacementError as e:
+        flag = "--goal-shift" if kind == "shift" else "--goal-path"
+        raise lfd.ConfigError(f"{flag}: the moving goal leaves the arm's reach ({e})") from None
+
+
+def moving(field: Any, motion: tuple[str, Any]) -> Any:
+    """``field`` re-centred on the moving goal (``lfd.goal.shift_goal`` / ``follow_goal_path``)."""
+    from lfd import goal as moving_goal
+
+    kind, spec = motion
+    return moving_goal.shift_goal(field, *spec) if kind == "shift" else moving_goal.follow_goal_path(field, *spec)
+
+
+def describe_goal_motion(args: argparse.Namespace) -> dict[str, Any] | None:
+    """--goal-shift / --goal-path for metrics.json."""
+    from lfd.goal import BLEND_S
+
+    if args.goal_shift:
+        return {"shift": args.goal_shift, "blend_s": BLEND_S}
+    if args.goal_path:
+        return {"path": str(args.goal_path), "blend_s": BLEND_S}
+    return None
 
 
 def push_of(args: argparse.Namespace, seed_: int) -> tuple[Any, ...]:
@@ -612,7 +680,7 @@ def _write_outputs(args: argparse.Namespace, exp: Any, results: list[Any], side:
     report = {
         "created": _dt.datetime.now().isoformat(timespec="seconds"),
         "command": sys.argv,
-        "settings": {**exp.describe(), "seed": args.seed, "video": {
+        "settings": {**exp.describe(), "seed": args.seed, "goal_motion": describe_goal_motion(args), "video": {
             "size": list(size), "fps": args.fps, "camera": args.camera.name if args.camera else "auto"}},
         "models": models,
         "runs": runs,

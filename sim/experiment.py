@@ -65,6 +65,18 @@ def has_phase(field: VelocityField) -> TypeGuard[TrackingField]:
     return hasattr(field, "phase_point_fn")
 
 
+def is_timed(field: Any) -> bool:
+    """Whether the field is time-varying, f(x, t): a moving goal (``lfd.goal``) or moving obstacles
+    (``lfd.obstacles``); the loop then passes the run's time."""
+    return bool(getattr(field, "time_varying", False))
+
+
+def goal_at(field: Any, t: float) -> np.ndarray:
+    """The field's goal at time t [s], shape (d,): ``field.goal_at(t)`` for a moving goal, else ``field.goal``."""
+    fn = getattr(field, "goal_at", None)
+    return np.asarray(fn(t) if fn is not None else field.goal, dtype=np.float64)
+
+
 @dataclass
 class RunResult:
     """A scored run.
@@ -151,24 +163,33 @@ class Experiment:
         a phase field runs through ``PhaseLoop``)."""
         holds = [p for p in perturbations if isinstance(p, Hold)]
         rest = tuple(p for p in perturbations if not isinstance(p, Hold))
-        env = make_environment(self.robot, self.placement, self.start, field.goal,
+        # the goal the run must reach: where a moving goal is at the end of the run
+        env = make_environment(self.robot, self.placement, self.start, goal_at(field, self.duration_s),
                                duration_s=self.duration_s, perturbations=rest,
                                rotation_ref=self.rotation_ref, physics=self.physics, **self.options)
-        fn: Callable[[np.ndarray], np.ndarray] = field.single_point_evaluator()
+        fn: Callable[..., np.ndarray] = field.single_point_evaluator()
         if has_phase(field):
             start = env.task.start_task - env.task.schedule.goal_offset_task
             fn = PhaseLoop(field, env.task.control_dt, start)
-        return execute(env, fn, fps=self.fps, progress=progress, desc=desc, hold=holds[0] if holds else None)
+        return execute(env, fn, fps=self.fps, progress=progress, desc=desc, hold=holds[0] if holds else None,
+                       timed=is_timed(field))
 
     def reference(self, field: VelocityField, rollout: Rollout) -> np.ndarray:
         """p_ref(t_k), shape (K+1, 3): the task-space rollout of the (goal-shifted) field from the
-        run's measured start, x_ref = dg + Phi_t(x0 - dg), mapped to world (``lfd.integrate.rk4``)."""
-        shift = rollout.goal_task - np.asarray(field.goal)
+        run's measured start, x_ref = dg + Phi_t(x0 - dg), mapped to world (``lfd.integrate.rk4``;
+        a time-varying field is integrated in time, from t = 0)."""
+        shift = self._shift(field, rollout)
         x0 = self.placement.to_task(rollout.ee[0])
         if has_phase(field):
             x, _ = rk4_phase(field.phase_point_fn(x0 - shift), x0 - shift, rollout.t)
             return self.placement.to_world(x + shift)
-        return self.placement.to_world(rk4(field.single_point_evaluator(), x0 - shift, rollout.t) + shift)
+        x = rk4(field.single_point_evaluator(), x0 - shift, rollout.t, timed=is_timed(field))
+        return self.placement.to_world(x + shift)
+
+    def _shift(self, field: VelocityField, ro: Rollout) -> np.ndarray:
+        """The run's constant goal shift dg (``sim.perturbations.GoalShift``), shape (d,), task units:
+        its goal minus the field's own goal at the run's end."""
+        return ro.goal_task - goal_at(field, self.duration_s)
 
     def run(self, field: VelocityField, name: str, perturbations: tuple[Perturbation, ...] | None = None,
             seed: int = 0, progress: bool = False) -> RunResult:
@@ -201,13 +222,15 @@ class Experiment:
         v_k = f(x_k - dg) at the measured x_k (at the recorded phase s_k for a phase field),
         recomputed from the recorded states: a check of ``Rollout.command``, which the loop records
         as it feeds the controller (before IK)."""
-        shift = ro.goal_task - np.asarray(field.goal)
+        shift = self._shift(field, ro)
         x = self.placement.to_task(ro.ee) - shift
         if has_phase(field) and ro.phase is not None:
             start = ro.start_task - shift
             phase_fn = field.phase_point_fn(start)
             return np.array([phase_fn(xk, float(sk))[0] for xk, sk in zip(x, ro.phase)])
-        fn = field.single_point_evaluator()
+        fn: Callable[..., np.ndarray] = field.single_point_evaluator()
+        if is_timed(field):
+            return np.array([fn(xk, float(tk)) for xk, tk in zip(x, ro.t)])
         return np.array([fn(xk) for xk in x])
 
     def phase_metrics(self, field: VelocityField, ro: Rollout, window: tuple[float, float] | None,
@@ -215,7 +238,7 @@ class Experiment:
         """The phase metrics of a run of a phase field (module docstring)."""
         field = cast("TrackingField", field)   # only called for a phase field's run
         assert ro.phase is not None
-        shift = ro.goal_task - np.asarray(field.goal)
+        shift = self._shift(field, ro)
         x0 = self.placement.to_task(ro.ee[0]) - shift
         path = self.placement.to_world(field.reference(ro.phase, x0) + shift)      # (K+1, 3)
         err = np.linalg.norm(ro.ee - path, axis=1)

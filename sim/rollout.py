@@ -6,7 +6,9 @@ Every control step k (t_k = k dt):
 2. p = FK(q): MuJoCo's tool site after ``mj_step1`` (see 6; equal to Pinocchio's FK to ~1e-16 m),
    else Pinocchio (``controller.measure``); the Jacobian is Pinocchio's;
 3. v = f(x - dg) with x = A^T (p - o) / s the MEASURED tool position in task space
-   (dg: a goal shift, see ``sim.perturbations``); a field with a phase (``lfd.learners.tracking``)
+   (dg: a goal shift, see ``sim.perturbations``), or v = f(x - dg, t_k) for a time-varying field
+   (a goal that moves during the run, ``lfd.goal``; moving obstacles, ``lfd.obstacles``); a field
+   with a phase (``lfd.learners.tracking``)
    runs through ``PhaseLoop``, which evaluates Eq. (T3) at its phase s and then advances s by one
    control step of Eq. (T4), so the phase waits while the measured tool is held back;
 4. qdot_ref = IK(q, twist(v)) and the actuator command (``FieldTrackingTask.apply``, through the
@@ -175,9 +177,9 @@ class PhaseLoop:
         return self.fn(x, self.s)[0]
 
 
-def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarray],
+def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
             fps: float = FPS, progress: bool = False, desc: str = "rollout",
-            hold: Hold | None = None) -> Rollout:
+            hold: Hold | None = None, timed: bool = False) -> Rollout:
     """Reset ``env`` and run one episode (module docstring) with a velocity field.
 
     Parameters
@@ -192,6 +194,8 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
     progress, desc : a progress bar and its label.
     hold : Hold, optional
         Clamp the arm in that window.
+    timed : bool
+        ``field_fn`` is time-varying, (x, t [s]) -> v: the loop passes t_k = k dt.
 
     Returns
     -------
@@ -211,22 +215,22 @@ def execute(env: control.Environment, field_fn: Callable[[np.ndarray], np.ndarra
     mujoco.set_mju_user_warning(messages.append)
     bar = tqdm(total=task.n_steps, desc=desc, disable=not progress, unit="step", leave=False, mininterval=0.5)
     try:
-        wall, cpu, j = _loop(task, m, d, field_fn, rec, h0, h1, bar)
+        wall, cpu, j = _loop(task, m, d, field_fn, rec, h0, h1, bar, timed)
     finally:
         mujoco.set_mju_user_warning(prev_handler)
         bar.close()
     if messages:  # MuJoCo's other warnings (e.g. too many contacts): said once, not swallowed
         warnings.warn(f"MuJoCo warned {len(messages)} time(s) during the rollout: {messages[0].strip()}",
                       RuntimeWarning, stacklevel=2)
-    _record_final(task, d, field_fn, rec, j)
+    _record_final(task, d, field_fn, rec, j, timed)
     return _to_rollout(rec, task, field_fn, wall, cpu, int(getattr(task.controller.ik, "limit_hits", 0) - hits0),
                        None if hold is None else (h0 * dt, h1 * dt))
 
 
-def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn: Callable[[np.ndarray], np.ndarray],
-          rec: _Record, h0: int, h1: int, bar: Any) -> tuple[float, float, int]:
+def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn: Callable[..., np.ndarray],
+          rec: _Record, h0: int, h1: int, bar: Any, timed: bool = False) -> tuple[float, float, int]:
     """The K control steps of ``execute`` (module docstring), written into ``rec``; the arm is held
-    in steps [h0, h1). Returns (wall s, CPU s, video frames written)."""
+    in steps [h0, h1); a ``timed`` field gets t_k. Returns (wall s, CPU s, video frames written)."""
     n_sub = int(round(task.control_dt / m.opt.timestep))
     ctl, qadr, dadr = task.controller, task.robot.mj_qpos_adr, task.robot.mj_dof_adr
     K, dt, shift = task.n_steps, task.control_dt, task.schedule.goal_offset_task
@@ -261,7 +265,9 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
             j += 1
             next_frame = int(fsteps[j]) if j < len(fsteps) else -1
         x = to_task(p)
-        v = V[k] = field_fn(x - shift) if shifted else field_fn(x)
+        if shifted:
+            x = x - shift
+        v = V[k] = field_fn(x, k * dt) if timed else field_fn(x)
         apply(d, q, None, v, m)
         if push_body >= 0:
             F[k] = force
@@ -285,8 +291,8 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
     return clock() - start, time.thread_time() - cpu0, j
 
 
-def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[[np.ndarray], np.ndarray],
-                  rec: _Record, j: int) -> None:
+def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[..., np.ndarray],
+                  rec: _Record, j: int, timed: bool = False) -> None:
     """Row K of the record: the state after the last step, the field's command there (a
     ``PhaseLoop`` is not advanced), and the frames not reached."""
     ctl, K = task.controller, task.n_steps
@@ -298,7 +304,8 @@ def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[
     if not np.isfinite(x).all():   # diverged: _to_rollout raises SimulationError
         rec.command[K] = np.nan
     else:
-        rec.command[K] = field_fn.peek(x) if isinstance(field_fn, PhaseLoop) else field_fn(x)
+        rec.command[K] = (field_fn.peek(x) if isinstance(field_fn, PhaseLoop) else
+                          field_fn(x, K * task.control_dt) if timed else field_fn(x))
     if j < len(rec.frame_steps):
         rec.frame_qpos[j:] = d.qpos
 
@@ -327,7 +334,7 @@ class _Record:
                    np.zeros((K + 1, 3)), np.empty(K), ftimes, fsteps, np.empty((len(fsteps), nq)))
 
 
-def _to_rollout(rec: _Record, task: FieldTrackingTask, field_fn: Callable[[np.ndarray], np.ndarray], wall: float,
+def _to_rollout(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.ndarray], wall: float,
                 cpu: float, ik_limit_hits: int, hold_window: tuple[float, float] | None) -> Rollout:
     """The Rollout of a finished loop (``SimulationError`` if its state went non-finite)."""
     robot, K, dt = task.robot, task.n_steps, task.control_dt

@@ -120,6 +120,8 @@ class FieldTrackingTask(control.Task):
         reach are redrawn (``START_DRAWS`` tries, then ``PlacementError``).
     field : callable x (d,) -> v (d,), optional
         A velocity field in task units; adds the ``field_velocity`` observation.
+    timed : bool
+        ``field`` is time-varying, (x, t [s]) -> v, and gets the simulation time.
     Others as ``sim.controller.FieldController``.
     """
 
@@ -128,7 +130,8 @@ class FieldTrackingTask(control.Task):
                  perturbations: Sequence[Perturbation] = (), rotation_ref: np.ndarray | None = None,
                  gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
-                 field: Callable[[np.ndarray], np.ndarray] | None = None, dynamics: str = "mujoco") -> None:
+                 field: Callable[..., np.ndarray] | None = None, dynamics: str = "mujoco",
+                 timed: bool = False) -> None:
         model = robot.mj_model if mj_model is None else mj_model
         self.robot, self.placement, self.control_dt = robot, placement, float(control_dt)
         self.n_steps = int(round(duration_s / control_dt))
@@ -145,6 +148,7 @@ class FieldTrackingTask(control.Task):
         self.start_radius = float(start_radius)
         self._rng = np.random.default_rng(seed)
         self.field = field
+        self._timed = timed
         self._shift = self.schedule.goal_offset_task.copy()
         if rotation_ref is None and not robot.planar:
             kin = Kinematics(robot)
@@ -245,7 +249,8 @@ class FieldTrackingTask(control.Task):
             task_position=x, goal=self.goal_task.copy(),
             joint_limit=((q < self.robot.q_min) | (q > self.robot.q_max)).astype(np.float64))
         if self.field is not None:
-            obs["field_velocity"] = np.array(self.field(x - self._shift), dtype=np.float64)
+            v = self.field(x - self._shift, physics.data.time) if self._timed else self.field(x - self._shift)
+            obs["field_velocity"] = np.array(v, dtype=np.float64)
         return obs
 
     def observation_spec(self, physics: ArmPhysics) -> collections.OrderedDict:
@@ -422,10 +427,10 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
         placement, start, goal, duration_s, rotation_ref = _demo_defaults(
             robot, demos, demo_index, placement, start, goal, learner_field is not None, duration_s, settle_s,
             rotation_ref)
-    if goal is None and learner_field is not None:
-        goal = learner_field.goal
-    placement, start, goal = _require(placement, start, goal, learner_field)
     duration_s = 6.0 if duration_s is None else duration_s
+    if goal is None and learner_field is not None:   # where a moving goal ends
+        goal = learner_field.goal_at(duration_s) if hasattr(learner_field, "goal_at") else learner_field.goal
+    placement, start, goal = _require(placement, start, goal, learner_field)
     physics = ArmPhysics.from_robot(robot) if physics is None else physics
     control_dt = _control_dt(control_hz, physics.model.opt.timestep)
     task = FieldTrackingTask(robot, placement, start, goal, control_dt, duration_s, ik=ik,
@@ -433,6 +438,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                              gains=gains, feedforward=feedforward, mj_model=physics.model.ptr,
                              start_radius=start_radius, seed=seed,
                              field=None if learner_field is None else learner_field.single_point_evaluator(),
+                             timed=bool(getattr(learner_field, "time_varying", False)),
                              dynamics=dynamics)
     return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
                                legacy_step=False)

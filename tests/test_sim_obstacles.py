@@ -1,4 +1,4 @@
-"""Obstacles in the MuJoCo scene (sim.obstacles): geoms where the task says, contacts counted."""
+"""Obstacles in the MuJoCo scene (sim.obstacles), the contacts counted; a goal that moves mid-run."""
 
 from __future__ import annotations
 
@@ -102,3 +102,85 @@ def test_demo_arm_obstacle_flag_reports_contacts_and_rejects_a_goal_inside(tmp_p
     rc = demo_arm.main([*base, "--out", str(bad), "--obstacle", "sphere:0,0,0.3"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "goal lies inside" in err and len(err.splitlines()) == 1 and not bad.exists()
+
+
+# ---- a goal that moves during the run (lfd.goal on the arm: the loop passes t to a time-varying field)
+
+@pytest.fixture(scope="module")
+def panda_goal_runs():
+    """The Panda on the spiral with a sink field: unshifted, and with the goal moved by 20% of the
+    demos' extent at t = 1 s (blended over 0.5 s)."""
+    import sys
+    from pathlib import Path
+
+    import sim
+    from lfd.goal import shift_goal
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from conftest import sink_field
+
+    demos = lfd.spiral()
+    field = sink_field(demos)
+    extent = float(np.max(np.ptp(demos.x.reshape(-1, 2), axis=0)))
+    dx = 0.2 * extent * np.array([0.6, -0.8])
+    moved = shift_goal(field, 1.0, dx, blend=0.5)
+    exp = sim.Experiment(load_robot("panda"), demos)
+    return exp, field, moved, dx, exp.run(field, "none"), exp.run(moved, "none")
+
+
+def test_goal_moved_mid_run_is_reached_on_the_panda_without_a_speed_spike(panda_goal_runs) -> None:
+    exp, field, moved, dx, plain, shifted = panda_goal_runs
+    ro, t = shifted.rollout, shifted.rollout.t
+    scale = exp.placement.scale
+    new_goal = exp.placement.to_world(field.goal + dx)
+    np.testing.assert_allclose(ro.goal_world, new_goal, atol=1e-12)            # scored against the moved goal
+    assert shifted.metrics["final_goal_error_m"] <= 5e-3
+    assert np.linalg.norm(ro.ee[-1] - plain.rollout.goal_world) > 0.5 * np.linalg.norm(dx) * scale
+    before = t < 1.0                                                            # the run is the plain one until t = 1 s
+    assert np.max(np.linalg.norm(ro.ee[before] - plain.rollout.ee[before], axis=1)) < 1e-9
+    assert np.max(np.linalg.norm(ro.ee[t > 1.2] - plain.rollout.ee[t > 1.2], axis=1)) > 0.01
+    robot = exp.robot
+    peak = np.max(np.abs(ro.qdot) / robot.v_max)
+    assert peak < 1.0 and ro.joint_limit_violations == 0
+    # no spike: the blended shift changes the command by no more than the plain run does per step
+    jump = np.max(np.linalg.norm(np.diff(ro.command, axis=0), axis=1))
+    jump_plain = np.max(np.linalg.norm(np.diff(plain.rollout.command, axis=0), axis=1))
+    assert jump <= 2.0 * jump_plain
+
+
+def test_the_loop_feeds_a_time_varying_field_its_time(panda_goal_runs) -> None:
+    exp, _, moved, _, _, shifted = panda_goal_runs
+    ro = shifted.rollout
+    np.testing.assert_allclose(exp.command(moved, ro), ro.command, rtol=1e-9, atol=1e-12)
+    # the reference is the time-varying field's own rollout: the robot tracks it as closely as the plain run
+    err = np.linalg.norm(ro.ee - shifted.reference, axis=1)
+    assert err[-1] < 5e-3 and shifted.metrics["tracking_rmse_m"] < 2.0 * max(panda_goal_runs[4].metrics[
+        "tracking_rmse_m"], 1e-3)
+
+
+def test_demo_arm_goal_shift_flag(tmp_path, monkeypatch, capsys) -> None:
+    import json
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import demo_arm
+    from conftest import sink_field
+
+    model = tmp_path / "sink.pt"
+    sink_field(lfd.spiral(n_demos=2, n_samples=60, duration=1.0)).save(model)
+    monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
+    base = ["--robot", "planar", "--model", str(model), "--perturb", "none", "--no-video", "--no-plots", "--quiet"]
+    out = tmp_path / "out"
+    assert demo_arm.main([*base, "--out", str(out), "--goal-shift", "1.5:0.3,-0.2"]) == 0
+    report = json.loads((out / "metrics.json").read_text())
+    assert report["settings"]["goal_motion"] == {"shift": "1.5:0.3,-0.2", "blend_s": 0.5}
+    assert report["runs"][0]["metrics"]["final_goal_error_m"] < 5e-3
+    capsys.readouterr()
+    for flag, message in (("1.5:0.3", "bad goal shift"), ("99:0.3,0.2", "after the run ends"),
+                          ("1:80,0", "leaves the arm's reach")):
+        bad = tmp_path / "bad"
+        rc = demo_arm.main([*base, "--out", str(bad), "--goal-shift", flag])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and message in err and len(err.splitlines()) == 1 and not bad.exists(), err

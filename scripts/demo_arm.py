@@ -400,7 +400,7 @@ def run(args: argparse.Namespace) -> int:
     from lfd.cache import cached_field
     from lfd.obstacles import parse_obstacle
     from robots import load_robot
-    from sim.obstacles import obstacle_contacts, with_obstacles
+    from sim.obstacles import obstacle_contacts
 
     progress = not args.quiet and sys.stderr.isatty()  # bars only on a terminal
     verbose = not args.quiet
@@ -435,10 +435,10 @@ def run(args: argparse.Namespace) -> int:
     # the placement (reachability) and the push are checked before any training
     exp = sim.Experiment(robot, demos, placement=placement(args, robot, demos), plane=args.plane,
                          size_m=args.size_m, control_hz=args.control_hz, ik=args.ik, fps=args.fps)
-    if obstacles:  # the same placement, on a scene that also holds the obstacles
-        robot = with_obstacles(robot, obstacles, exp.placement)
+    if obstacles:  # the same placement, on a scene that also holds the obstacles (moving ones move)
         exp = sim.Experiment(robot, demos, placement=exp.placement, control_hz=args.control_hz, ik=args.ik,
-                             fps=args.fps)
+                             fps=args.fps, obstacles=obstacles)
+        robot = exp.robot
     if goal_motion is not None:
         check_goal_motion(goal_motion, exp, demos)
     pushes = "push" in args.perturb or args.side_by_side == "push" or args.grid
@@ -513,7 +513,7 @@ def run(args: argparse.Namespace) -> int:
     t_sim = time.perf_counter() - t_sim
     if obstacles:
         for r in {id(r): r for r in results + side + grid}.values():
-            report = obstacle_contacts(robot, r.rollout.q, r.rollout.t)
+            report = obstacle_contacts(robot, r.rollout.q, r.rollout.t, r.rollout.mocap_pos)
             r.metrics.update(obstacle_contacts=report.contacts, obstacle_steps_in_contact=report.steps_in_contact,
                              obstacle_min_clearance_m=report.min_clearance_m)
 

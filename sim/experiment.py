@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypeGuard, cast
 
@@ -25,11 +25,13 @@ import numpy as np
 
 from lfd import DemoSet, VelocityField
 from lfd.integrate import rk4, rk4_phase
+from lfd.obstacles import Obstacle
 from robots import Kinematics, RobotModel
 from sim.camera import CameraSpec
 from sim.controller import Gains
 from sim.errors import SimError
 from sim.metrics import RECOVERY_TOLERANCE_M, recovery_time, run_metrics
+from sim.obstacles import mocap_path, with_obstacles
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
 from sim.placement import Placement, base_position
 from sim.render import HEIGHT, WIDTH, Panel, render_panels
@@ -129,15 +131,22 @@ class Experiment:
         Run time after the demo's duration, s.
     fps : float
         Rate at which the rollouts keep the full qpos for video, frames per simulated second.
+    obstacles : sequence of ``lfd.obstacles.Obstacle``
+        Task-space obstacles put into the robot's scene (``sim.obstacles.with_obstacles``); moving
+        ones move with the run (mocap bodies, ``sim.obstacles.mocap_path``; ``Rollout.mocap_pos``).
+        The field avoids them only if it is built to (``lfd.avoid``).
     """
 
     def __init__(self, robot: RobotModel, demos: DemoSet, *, placement: Placement | None = None,
                  plane: str = "auto", size_m: float | None = None, demo_index: int = 0,
                  control_hz: float = 500.0, ik: str = "dls",
                  settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True,
-                 fps: float = FPS) -> None:
+                 fps: float = FPS, obstacles: Sequence[Obstacle] = ()) -> None:
         self.robot, self.demos = robot, demos
         self.placement = placement or Placement.auto(robot, demos.x, plane=plane, size_m=size_m)
+        self.obstacles = tuple(obstacles)
+        if self.obstacles:   # the scene holds them; the placement above is the bare robot's
+            self.robot = robot = with_obstacles(robot, self.obstacles, self.placement)
         self.rotation_ref = None
         if not robot.planar:
             kin = Kinematics(robot)
@@ -167,6 +176,11 @@ class Experiment:
         env = make_environment(self.robot, self.placement, self.start, goal_at(field, self.duration_s),
                                duration_s=self.duration_s, perturbations=rest,
                                rotation_ref=self.rotation_ref, physics=self.physics, **self.options)
+        task = env.task
+        path = mocap_path(self.robot.mj_model, self.obstacles, self.placement,
+                          np.arange(task.n_steps + 1) * task.control_dt)
+        if path is not None:
+            task.set_mocap_path(path)
         fn: Callable[..., np.ndarray] = field.single_point_evaluator()
         if has_phase(field):
             start = env.task.start_task - env.task.schedule.goal_offset_task

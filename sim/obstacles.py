@@ -13,8 +13,12 @@ Task units map to the world by the placement, p = o + s A x (``sim.placement.Pla
   half thickness along the plane normal is the smaller of its two half sizes;
 * a ``Capsule`` becomes a capsule from p(a) to p(b) of radius s r.
 
-The obstacle's ``margin`` is not drawn: it is clearance the field keeps, not geometry. Moving
-obstacles are placed where they are at t = 0 (the geoms are static).
+The obstacle's ``margin`` is not drawn: it is clearance the field keeps, not geometry. A moving
+obstacle's geom sits in a mocap body ``obstacle_<i>`` whose position is its world displacement
+s A delta(t) (``lfd.obstacles.Obstacle.offset``); ``mocap_path`` gives those positions at the
+control steps, which the control loop writes into ``MjData.mocap_pos`` before each step (so the arm
+collides with the obstacle where it is), the rollout records, the video draws and
+``obstacle_contacts`` replays.
 """
 
 from __future__ import annotations
@@ -112,11 +116,50 @@ def with_obstacles(robot: RobotModel, obstacles: Sequence[Obstacle], placement: 
     world = root.find("worldbody")
     if world is None:
         raise ConfigError(f"robot '{robot.name}': its scene has no <worldbody>")
-    for attrs in obstacle_geoms(obstacles, placement):
-        ET.SubElement(world, "geom", attrs)
+    for ob, attrs in zip(obstacles, obstacle_geoms(obstacles, placement)):
+        if ob.moving:   # the geom keeps its t = 0 coordinates inside a body moved by the displacement
+            body = ET.SubElement(world, "body", {"name": attrs["name"], "mocap": "true",
+                                                 "pos": _numbers(_displacement(ob, placement, 0.0))})
+            ET.SubElement(body, "geom", attrs)
+        else:
+            ET.SubElement(world, "geom", attrs)
     xml = ET.tostring(root, encoding="unicode")
     model = mujoco.MjModel.from_xml_string(xml, dict(robot.mj_assets))
     return dataclasses.replace(robot, mjcf_xml=xml, mj_model=model)
+
+
+def _displacement(ob: Obstacle, placement: Placement, t: float) -> np.ndarray:
+    """World displacement s A delta(t), shape (3,), m, of obstacle ``ob`` at time t [s]."""
+    return placement.scale * placement.axes @ ob.offset(t)
+
+
+def mocap_path(model: mujoco.MjModel, obstacles: Sequence[Obstacle], placement: Placement,
+               times: np.ndarray) -> np.ndarray | None:
+    """Positions of every mocap body of ``model`` at ``times`` (shape (T,), s): shape (T, nmocap, 3),
+    m, with the moving obstacles' bodies (``with_obstacles``) at their displacement and any other
+    mocap body where the model puts it; None when no obstacle moves."""
+    movers = [(i, ob) for i, ob in enumerate(obstacles) if ob.moving]
+    if not movers:
+        return None
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    out = np.broadcast_to(_model_mocap(model), (times.size, model.nmocap, 3)).copy()
+    for i, ob in movers:
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"{PREFIX}{i}")
+        if body < 0 or model.body_mocapid[body] < 0:
+            raise ConfigError(f"obstacle {i + 1} ({ob.describe()}) moves but the scene has no mocap body "
+                              f"'{PREFIX}{i}' (build it with sim.obstacles.with_obstacles)")
+        m = int(model.body_mocapid[body])
+        out[:, m] = [_displacement(ob, placement, float(t)) for t in times]
+    return out
+
+
+def _model_mocap(model: mujoco.MjModel) -> np.ndarray:
+    """The mocap bodies' positions in the model, shape (nmocap, 3)."""
+    ids = [b for b in range(model.nbody) if model.body_mocapid[b] >= 0]
+    out = np.zeros((model.nmocap, 3))
+    for b in ids:
+        out[model.body_mocapid[b]] = model.body_pos[b]
+    return out
 
 
 def obstacle_geom_ids(model: mujoco.MjModel) -> np.ndarray:
@@ -126,22 +169,29 @@ def obstacle_geom_ids(model: mujoco.MjModel) -> np.ndarray:
 
 
 def _robot_geom_ids(model: mujoco.MjModel) -> np.ndarray:
-    """Collidable geoms on bodies other than the world body, shape (m,)."""
+    """Collidable geoms on bodies other than the world body and the moving obstacles' mocap
+    bodies, shape (m,)."""
     return np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] != 0
+                     and model.body_mocapid[model.geom_bodyid[g]] < 0
                      and (model.geom_contype[g] or model.geom_conaffinity[g])], dtype=int)
 
 
-def obstacle_contacts(robot: RobotModel, q: np.ndarray, t: np.ndarray | None = None) -> ContactReport:
+def obstacle_contacts(robot: RobotModel, q: np.ndarray, t: np.ndarray | None = None,
+                      mocap_pos: np.ndarray | None = None) -> ContactReport:
     """Replay the arm joint trajectory ``q``, shape (T, n), through ``robot``'s scene (built by
     ``with_obstacles``) and report robot-obstacle contacts and the smallest clearance.
 
     ``t`` : array, shape (T,), the states' times (default: their indices). Collision detection runs
     on every state (``mj_kinematics`` + ``mj_collision``), so contacts are found at the states'
-    spacing, not MuJoCo's internal step.
+    spacing, not MuJoCo's internal step. ``mocap_pos`` : array, shape (T, nmocap, 3), optional: where
+    the mocap bodies (moving obstacles) were at each state (``sim.Rollout.mocap_pos``).
     """
     q = np.asarray(q, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != robot.n:
         raise ConfigError(f"joint trajectory must have shape (T, {robot.n}), got {q.shape}")
+    if mocap_pos is not None and np.shape(mocap_pos) != (len(q), robot.mj_model.nmocap, 3):
+        raise ConfigError(f"mocap positions must have shape ({len(q)}, {robot.mj_model.nmocap}, 3), "
+                          f"got {np.shape(mocap_pos)}")
     times = np.arange(len(q), dtype=np.float64) if t is None else np.asarray(t, dtype=np.float64)
     model = robot.mj_model
     data = mujoco.MjData(model)
@@ -160,6 +210,8 @@ def obstacle_contacts(robot: RobotModel, q: np.ndarray, t: np.ndarray | None = N
     fromto = np.zeros(6)
     for k in range(len(q)):
         data.qpos[robot.mj_qpos_adr] = q[k]
+        if mocap_pos is not None:
+            data.mocap_pos[:] = mocap_pos[k]
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
         hits = 0

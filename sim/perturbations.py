@@ -123,6 +123,8 @@ class Schedule:
     push_steps : tuple[int, int]          -- control steps [k0, k1) of the push
     push_window_s : tuple[float, float] or None -- the same window in seconds of sim time
     qvel_noise : array, shape (K, n) or None -- noise added to arm joint velocities per step
+    mocap_pos : array, shape (K+1, nmocap, 3) or None -- mocap body positions (moving obstacles,
+        ``sim.obstacles.mocap_path``) written before each step
     """
 
     start_offset_task: np.ndarray
@@ -132,6 +134,7 @@ class Schedule:
     push_steps: tuple[int, int] = (-1, -1)
     push_window_s: tuple[float, float] | None = None
     qvel_noise: np.ndarray | None = None
+    mocap_pos: np.ndarray | None = None
 
 
 def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement, body_ids: dict[str, int],

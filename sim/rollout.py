@@ -101,6 +101,9 @@ class Rollout:
     hold_window_s : (t0, t1) or None
     cpu_s : float or None
         The loop's CPU time (this thread; ``time.thread_time``), which machine load does not inflate.
+    mocap_pos : ndarray, shape (K+1, nmocap, 3), or None
+        Where the mocap bodies (moving obstacles, ``sim.obstacles.mocap_path``) were at each step, m;
+        ``frame_mocap`` gives them at the video frames.
     """
 
     t: np.ndarray
@@ -124,6 +127,15 @@ class Rollout:
     phase: np.ndarray | None = None
     hold_window_s: tuple[float, float] | None = None
     cpu_s: float | None = None
+    mocap_pos: np.ndarray | None = None
+
+    @property
+    def frame_mocap(self) -> np.ndarray | None:
+        """The mocap bodies' positions at the video frames, shape (F, nmocap, 3), or None."""
+        if self.mocap_pos is None:
+            return None
+        dt = float(self.t[1] - self.t[0])
+        return self.mocap_pos[np.minimum(np.round(self.frame_t / dt).astype(int), len(self.t) - 1)]
 
     @property
     def realtime_factor(self) -> float:
@@ -352,7 +364,7 @@ def _to_rollout(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., n
         goal_world=task.goal_world.copy(), push_window_s=s.push_window_s,
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,
         ik_limit_hits=ik_limit_hits, joint_limit_violations=violations,
-        phase=phase, hold_window_s=hold_window, cpu_s=cpu)
+        phase=phase, hold_window_s=hold_window, cpu_s=cpu, mocap_pos=s.mocap_pos)
 
 
 def _divergence_message(d: mujoco.MjData, k: int, dt: float, bad: list[int]) -> str:

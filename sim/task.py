@@ -122,6 +122,10 @@ class FieldTrackingTask(control.Task):
         A velocity field in task units; adds the ``field_velocity`` observation.
     timed : bool
         ``field`` is time-varying, (x, t [s]) -> v, and gets the simulation time.
+    mocap_path : array, shape (K+1, nmocap, 3), optional
+        Mocap body positions (moving obstacles, ``sim.obstacles.mocap_path``) at the K+1 control
+        steps; each is written when its step's command is (after ``mj_step1``), so with MuJoCo's
+        computed torque the collision of step k still sees step k-1's positions.
     Others as ``sim.controller.FieldController``.
     """
 
@@ -131,7 +135,7 @@ class FieldTrackingTask(control.Task):
                  gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
                  field: Callable[..., np.ndarray] | None = None, dynamics: str = "mujoco",
-                 timed: bool = False) -> None:
+                 timed: bool = False, mocap_path: np.ndarray | None = None) -> None:
         model = robot.mj_model if mj_model is None else mj_model
         self.robot, self.placement, self.control_dt = robot, placement, float(control_dt)
         self.n_steps = int(round(duration_s / control_dt))
@@ -139,6 +143,9 @@ class FieldTrackingTask(control.Task):
         self.schedule: Schedule = compile_schedule(
             perturbations, placement, bodies, tool_body(robot, model), robot.n, self.n_steps, control_dt)
         self.perturbations = tuple(perturbations)
+        self._nmocap = int(model.nmocap)
+        if mocap_path is not None:
+            self.set_mocap_path(mocap_path)
         self._start_nominal = np.asarray(start, dtype=np.float64) + self.schedule.start_offset_task
         self.start_task = self._start_nominal.copy()
         self.goal_task = np.asarray(goal, dtype=np.float64) + self.schedule.goal_offset_task
@@ -197,6 +204,8 @@ class FieldTrackingTask(control.Task):
         data.qpos[self._qadr] = self.q_start
         data.qvel[:] = 0.0
         data.xfrc_applied[:] = 0.0
+        if self.schedule.mocap_pos is not None:
+            data.mocap_pos[:] = self.schedule.mocap_pos[0]
         data.ctrl[self._acts] = self.q_start if self.controller.actuation == "position" else 0.0
         self.controller.reset(self.q_start)
         self.step_index = 0
@@ -294,6 +303,15 @@ class FieldTrackingTask(control.Task):
         self.controller._qdot_prev = state[size:size + n].copy()
         self.step_index = int(round(state[-1]))
 
+    def set_mocap_path(self, path: np.ndarray) -> None:
+        """Move the mocap bodies along ``path``, shape (K+1, nmocap, 3), m, one row per control
+        step (``sim.obstacles.mocap_path``); from the next episode on."""
+        path = np.asarray(path, dtype=np.float64)
+        if path.shape != (self.n_steps + 1, self._nmocap, 3) or not np.isfinite(path).all():
+            raise SimError(f"mocap path must be finite with shape ({self.n_steps + 1}, {self._nmocap}, 3), "
+                           f"got {path.shape}")
+        self.schedule.mocap_pos = path
+
     # ---------------------------------------------------------------- shared with the fast loop
     def apply(self, data: mujoco.MjData, q: np.ndarray, qdot: np.ndarray | None, v: np.ndarray,
               model: mujoco.MjModel | None = None) -> None:
@@ -316,6 +334,8 @@ class FieldTrackingTask(control.Task):
                 data.xfrc_applied[s.push_body] = s.push_force
             elif k == k1:
                 data.xfrc_applied[s.push_body] = 0.0
+        if s.mocap_pos is not None and k < len(s.mocap_pos):   # moving obstacles where they are at t_k
+            data.mocap_pos[:] = s.mocap_pos[k]
         if s.qvel_noise is not None and k < len(s.qvel_noise):
             data.qvel[self._dadr] += s.qvel_noise[k]
             if model is not None and self.controller.uses_mj_dynamics:
@@ -389,7 +409,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                      actuation: str | None = None, perturbations: Sequence[Perturbation] = (),
                      rotation_ref: np.ndarray | None = None, gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None,
-                     dynamics: str = "mujoco") -> control.Environment:
+                     dynamics: str = "mujoco", mocap_path: np.ndarray | None = None) -> control.Environment:
     """A dm_control Environment of ``robot`` following task velocities (see the module docstring).
 
     One call from names::
@@ -439,6 +459,6 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                              start_radius=start_radius, seed=seed,
                              field=None if learner_field is None else learner_field.single_point_evaluator(),
                              timed=bool(getattr(learner_field, "time_varying", False)),
-                             dynamics=dynamics)
+                             dynamics=dynamics, mocap_path=mocap_path)
     return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
                                legacy_step=False)

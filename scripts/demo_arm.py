@@ -153,9 +153,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="world direction (normalised; default: drawn from --seed)")
     p.add_argument("--obstacle", action="append", default=[], metavar="SHAPE:NUMBERS",
                    help="an obstacle in task units (repeatable): sphere:x,y[,z],r, box:x,y[,z],hx,hy[,hz] or "
-                        "capsule:x1,y1[,z1],x2,y2[,z2],r, optionally ';margin=M'. The fields avoid it "
-                        "(lfd.avoid), the scene holds it as a MuJoCo geom, and each run reports its "
-                        "robot-obstacle contacts and smallest clearance")
+                        "capsule:x1,y1[,z1],x2,y2[,z2],r, optionally ';margin=M' and ';velocity=VX,VY[,VZ]' "
+                        "(it moves, units/s). The fields avoid it (lfd.avoid), the scene holds it as a "
+                        "MuJoCo geom (moving with it), and each run reports its robot-obstacle contacts "
+                        "and smallest clearance")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--goal-shift", metavar="T:DX,DY[,DZ]",
                    help="move the goal by DX (task units) at time T (s) of every run, blended in over "

@@ -78,8 +78,9 @@ def test_contacts_are_counted_where_the_tool_enters_and_clearance_elsewhere(plan
         obstacle_contacts(robot, q[:, :2])
 
 
-def test_demo_arm_obstacle_flag_reports_contacts_and_rejects_a_goal_inside(tmp_path, monkeypatch, capsys) -> None:
-    import json
+@pytest.fixture
+def demo_arm_sink(tmp_path, monkeypatch):
+    """scripts/demo_arm.py's module and the flags of a quick planar run of a sink field (no training)."""
     import sys
     from pathlib import Path
 
@@ -91,12 +92,24 @@ def test_demo_arm_obstacle_flag_reports_contacts_and_rejects_a_goal_inside(tmp_p
     model = tmp_path / "sink.pt"
     sink_field(lfd.spiral(n_demos=2, n_samples=60, duration=1.0)).save(model)
     monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
+    return demo_arm, ["--robot", "planar", "--model", str(model), "--perturb", "none", "--no-video", "--no-plots",
+                      "--quiet"]
+
+
+def test_demo_arm_obstacle_flag_reports_contacts_and_rejects_a_goal_inside(tmp_path, demo_arm_sink, capsys) -> None:
+    import json
+
+    demo_arm, base = demo_arm_sink
     out = tmp_path / "out"
-    base = ["--robot", "planar", "--model", str(model), "--perturb", "none", "--no-video", "--no-plots", "--quiet"]
     rc = demo_arm.main([*base, "--out", str(out), "--obstacle", "sphere:3,3,0.1"])
     assert rc == 0
     metrics = json.loads((out / "metrics.json").read_text())["runs"][0]["metrics"]
     assert metrics["obstacle_contacts"] == 0 and metrics["obstacle_min_clearance_m"] > 0.01
+    away = tmp_path / "away"   # the same sphere moving away from the arm: the scene moves it, so more clearance
+    assert demo_arm.main([*base, "--out", str(away), "--obstacle", "sphere:3,3,0.1;velocity=0.3,0.3"]) == 0
+    moving = json.loads((away / "metrics.json").read_text())["runs"][0]["metrics"]
+    assert moving["obstacle_contacts"] == 0
+    assert moving["obstacle_min_clearance_m"] > metrics["obstacle_min_clearance_m"] + 0.005, (moving, metrics)
     capsys.readouterr()
     bad = tmp_path / "bad"
     rc = demo_arm.main([*base, "--out", str(bad), "--obstacle", "sphere:0,0,0.3"])
@@ -158,20 +171,10 @@ def test_the_loop_feeds_a_time_varying_field_its_time(panda_goal_runs) -> None:
         "tracking_rmse_m"], 1e-3)
 
 
-def test_demo_arm_goal_shift_flag(tmp_path, monkeypatch, capsys) -> None:
+def test_demo_arm_goal_shift_flag(tmp_path, demo_arm_sink, capsys) -> None:
     import json
-    import sys
-    from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import demo_arm
-    from conftest import sink_field
-
-    model = tmp_path / "sink.pt"
-    sink_field(lfd.spiral(n_demos=2, n_samples=60, duration=1.0)).save(model)
-    monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
-    base = ["--robot", "planar", "--model", str(model), "--perturb", "none", "--no-video", "--no-plots", "--quiet"]
+    demo_arm, base = demo_arm_sink
     out = tmp_path / "out"
     assert demo_arm.main([*base, "--out", str(out), "--goal-shift", "1.5:0.3,-0.2"]) == 0
     report = json.loads((out / "metrics.json").read_text())

@@ -134,21 +134,42 @@ def _forward(azimuth: float, elevation: float) -> np.ndarray:
 def project(scene: mujoco.MjvScene, points: np.ndarray, width: int, height: int) -> np.ndarray:
     """Pixel coordinates (u right, v down), shape (K, 2), of world points (K, 3) in the image that
     ``mjr_render`` makes of ``scene`` (after ``mjv_updateScene``) in a width x height viewport.
-    Points behind the camera get NaN."""
-    glcam = mujoco.mjv_averageCamera(scene.camera[0], scene.camera[1])
-    pos = np.asarray(glcam.pos, dtype=np.float64)
-    fwd = np.asarray(glcam.forward, dtype=np.float64)
-    up = np.asarray(glcam.up, dtype=np.float64)
-    right = np.cross(fwd, up)
-    v = np.asarray(points, dtype=np.float64).reshape(-1, 3) - pos
-    z = v @ fwd
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xn = (v @ right) * glcam.frustum_near / z
-        yn = (v @ up) * glcam.frustum_near / z
-    bottom, top = glcam.frustum_bottom, glcam.frustum_top
-    half_w = glcam.frustum_width if glcam.frustum_width > 0 else 0.5 * (top - bottom) * width / height
-    u = (xn - (glcam.frustum_center - half_w)) / (2 * half_w) * width
-    vv = (top - yn) / (top - bottom) * height
-    out = np.stack([u, vv], axis=1)
-    out[z <= 1e-9] = np.nan
-    return out
+    Points behind the camera get NaN. To project several point sets of one frame, make one
+    ``Projector`` instead."""
+    return Projector(scene, width, height)(points)
+
+
+class Projector:
+    r"""The projection of world points to pixels for the camera of ``scene`` (after
+    ``mjv_updateScene``) in a ``width`` x ``height`` viewport, set up once per frame.
+
+    With the OpenGL camera at p looking along e_f, up e_u, right e_r = e_f x e_u, a world point x
+    has camera coordinates (x_r, x_u, x_f) = (e_r, e_u, e_f) . (x - p) and lies at pixel
+
+    .. math:: u = \left(\frac{n x_r}{x_f} - (c - w)\right) \frac{W}{2 w}, \qquad
+              v = \left(t - \frac{n x_u}{x_f}\right) \frac{H}{t - b}
+
+    with n, c, t, b the frustum's near distance, centre, top and bottom and w its half width (from
+    the aspect W / H where the frustum gives none). Points with x_f <= 0 (behind) get NaN.
+    """
+
+    def __init__(self, scene: mujoco.MjvScene, width: int, height: int) -> None:
+        glcam = mujoco.mjv_averageCamera(scene.camera[0], scene.camera[1])
+        f, u = (np.asarray(v, dtype=np.float64).tolist() for v in (glcam.forward, glcam.up))
+        right = [f[1] * u[2] - f[2] * u[1], f[2] * u[0] - f[0] * u[2], f[0] * u[1] - f[1] * u[0]]
+        self.pos = np.array(glcam.pos, dtype=np.float64)                          # (3,)
+        self.basis = np.array([right, u, f], dtype=np.float64).T                  # (3, 3): r, u, f
+        near, bottom, top = glcam.frustum_near, glcam.frustum_bottom, glcam.frustum_top
+        half_w = glcam.frustum_width if glcam.frustum_width > 0 else 0.5 * (top - bottom) * width / height
+        # u = a_u x / z + b_u, v = a_v y / z + b_v with x, y, z the point in camera coordinates
+        self._a = np.array([near / (2 * half_w) * width, -near / (top - bottom) * height])
+        self._b = np.array([-(glcam.frustum_center - half_w) / (2 * half_w) * width, top / (top - bottom) * height])
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """Pixels (u, v), shape (K, 2), of world points, shape (K, 3); NaN behind the camera."""
+        cam = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - self.pos) @ self.basis   # (K, 3)
+        z = cam[:, 2:]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = cam[:, :2] / z * self._a + self._b
+        out[z[:, 0] <= 1e-9] = np.nan
+        return out

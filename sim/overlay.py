@@ -186,11 +186,20 @@ class StaticLayer:
         a = np.asarray(self.image)
         self.mask = a[..., 3] > 0
         self.index = np.flatnonzero(self.mask)               # the layer's pixels, row-major
-        self.values = a[..., :3].reshape(-1, 3)[self.index].copy()
+        self.values = _pixels(np.ascontiguousarray(a[..., :3]))[self.index].copy()
 
     def stamp(self, frame: np.ndarray) -> None:
         """Copy the layer into ``frame`` (h, w, 3) uint8, C-contiguous, in place."""
-        frame.reshape(-1, 3)[self.index] = self.values
+        np.put(_pixels(frame), self.index, self.values)
+
+
+_PIXEL = np.dtype((np.void, 3))
+
+
+def _pixels(image: np.ndarray) -> np.ndarray:
+    """A view, shape (h w,), of image (h, w, 3) uint8, C-contiguous, with one 3-byte item per pixel:
+    a masked copy of whole pixels is then one ``np.put`` (several times faster than on (h w, 3))."""
+    return image.reshape(-1, 3).view(_PIXEL).reshape(-1)
 
 
 def _boxed(draw: ImageDraw.ImageDraw, xy: tuple[int, int], text: str, f, anchor: str, pad: int) -> None:

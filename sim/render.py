@@ -7,13 +7,16 @@ multisampling (each costs a software renderer, llvmpipe, a large share of its fr
 paths, legend and labels are then drawn into the image in 2-D (``sim.overlay``, projected with
 ``sim.camera.project``), on top of the arm. MuJoCo user geoms (``Polyline``, ``Arrow``,
 ``Sphere``, drawn in 3-D inside the scene) remain available through ``SceneRenderer.render``.
-Several panels share one GL context and one encoder (``render_panels``).
+Several panels share one GL context and one encoder (``render_panels``), and successive videos
+of one model share one GL context (``shared_renderer``).
 """
 
 from __future__ import annotations
 
+import atexit
 import math
 import os
+import threading
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -24,7 +27,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from lfd.io import atomic_path
-from sim.camera import CameraSpec, fixed_camera, project, task_camera
+from sim.camera import CameraSpec, Projector, fixed_camera, task_camera
 from sim.errors import RenderError
 from sim.overlay import FrameText, StaticLayer, draw_dynamic, draw_static, tile
 from sim.rollout import FPS, frame_times
@@ -152,6 +155,15 @@ class SceneRenderer:
         self.option = mujoco.MjvOption()
         self._mjr = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._mjr)
+        _nearest_mipmap(self._mjr)
+        self.resize(width, height)
+
+    def resize(self, width: int, height: int) -> None:
+        """Render width x height images from now on, at most the offscreen buffer's size (the
+        model's ``vis.global_.offwidth`` x ``offheight`` when the renderer was made)."""
+        if width > self._mjr.offWidth or height > self._mjr.offHeight:
+            raise RenderError(f"{width}x{height} exceeds the renderer's {self._mjr.offWidth}x{self._mjr.offHeight}")
+        self.width, self.height = width, height
         self._rect = mujoco.MjrRect(0, 0, width, height)
         self._pixels = np.empty((height, width, 3), dtype=np.uint8)
 
@@ -173,6 +185,16 @@ class SceneRenderer:
         mujoco.mjr_readPixels(self._pixels, None, self._rect, self._mjr)
         return np.flipud(self._pixels).copy()
 
+    @property
+    def buffer_size(self) -> tuple[int, int]:
+        """(width, height) of the offscreen buffer: the largest images this renderer makes."""
+        return int(self._mjr.offWidth), int(self._mjr.offHeight)
+
+    def make_current(self) -> None:
+        """Make the renderer's GL context the calling thread's current one."""
+        if self._ctx is not None:
+            self._ctx.make_current()
+
     def close(self) -> None:
         if self._mjr is not None:
             self._mjr.free()
@@ -186,6 +208,66 @@ class SceneRenderer:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _nearest_mipmap(mjr: mujoco.MjrContext) -> None:
+    """Sample the 2-D textures (the floor's) from the nearest mipmap level instead of blending two
+    (``GL_LINEAR_MIPMAP_NEAREST``): a software renderer (llvmpipe) then spends about a sixth less
+    time on a frame with a textured floor, and pixels change by at most 2 or 3 of 255. Needs PyOpenGL
+    (as MuJoCo's EGL and OSMesa back-ends do); without it, nothing changes."""
+    try:
+        from OpenGL import GL
+    except ImportError:
+        return
+    for tex, kind in zip(mjr.texture[:mjr.ntexture], mjr.textureType[:mjr.ntexture]):
+        if kind == mujoco.mjtTexture.mjTEXTURE_2D:
+            GL.glBindTexture(GL.GL_TEXTURE_2D, int(tex))
+            GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MIN_FILTER, GL.GL_LINEAR_MIPMAP_NEAREST)
+    GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+
+
+# ---------------------------------------------------------------- one renderer kept between videos
+_shared: SceneRenderer | None = None       # the renderer kept for the next video (one at a time)
+_shared_owner: tuple[int, int] = (0, 0)    # (process id, thread id) that made it current
+_release_at_exit: list[bool] = []          # [True] once release_shared_renderer runs at exit
+
+
+def shared_renderer(model: mujoco.MjModel, width: int, height: int) -> SceneRenderer | None:
+    """A ``SceneRenderer`` of ``model`` set to width x height, kept open for the next video:
+    making one (a GL context, and ``MjrContext`` uploading meshes and textures) costs a software
+    renderer about 0.4 s. The one kept is reused when it is of the same model object and its
+    offscreen buffer holds the size, else freed and replaced (so it keeps at most one model alive);
+    it is freed at exit (``release_shared_renderer``). Returns None when the kept one belongs to another thread (its
+    GL context is current there): the caller then makes its own."""
+    global _shared, _shared_owner
+    owner = (os.getpid(), threading.get_ident())
+    r = _shared
+    if r is not None and _shared_owner[0] != owner[0]:
+        _shared = r = None                  # made before a fork: the parent's, not ours to free
+    if r is not None and _shared_owner != owner:
+        return None
+    if r is not None and (r.model is not model or r.buffer_size[0] < width or r.buffer_size[1] < height):
+        release_shared_renderer()
+        r = None
+    if r is None:
+        r = SceneRenderer(model, width, height)
+        _shared, _shared_owner = r, owner
+        if not _release_at_exit:   # after the back-end's own exit hook (EGL's eglTerminate): runs before it
+            atexit.register(release_shared_renderer)
+            _release_at_exit.append(True)
+    r.make_current()
+    r.resize(width, height)
+    return r
+
+
+def release_shared_renderer() -> None:
+    """Free the renderer that ``shared_renderer`` keeps (if any): forget it, and free its GL
+    context when this thread made it (another process's or thread's is left to its owner's exit)."""
+    global _shared
+    r, _shared = _shared, None
+    if r is not None and _shared_owner == (os.getpid(), threading.get_ident()):
+        r.make_current()
+        r.close()
 
 
 # ---------------------------------------------------------------- video
@@ -252,6 +334,18 @@ def _frame_qpos(rollout: Any, times: np.ndarray, nq: int, qpos_adr: np.ndarray) 
     return out
 
 
+def _frame_mocap(rollout: Any, times: np.ndarray, nmocap: int) -> np.ndarray | None:
+    """The mocap bodies' positions (moving obstacles), shape (F, nmocap, 3), at ``times``, or None
+    when the rollout moved none."""
+    path = getattr(rollout, "mocap_pos", None)
+    if path is None:
+        return None
+    if path.shape[1] != nmocap:
+        raise RenderError("the rollout's mocap bodies do not fit the model")
+    dt = float(rollout.t[1] - rollout.t[0])
+    return np.asarray(path)[np.minimum(np.round(times / dt).astype(int), len(path) - 1)]
+
+
 def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np.ndarray,
                   path: str | os.PathLike, base: np.ndarray, qpos_adr: np.ndarray,
                   normal: np.ndarray | None = None, width: int = WIDTH, height: int = HEIGHT,
@@ -264,7 +358,8 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
     Each panel: the arm (visual meshes; collision geoms hidden), and drawn on top
     (``sim.overlay``) the demonstration ``demo_world`` (T, 3), the field's rollout, the robot's
     trace so far, the goal, the push arrow while the push acts (plus 0.1 s) and the point where
-    it began, a legend, the title, the simulated time and the tracking error |p(t) - p_ref(t)|.
+    it began, a legend, the title, the simulated time and the tracking error |p(t) - p_ref(t)|;
+    moving obstacles where the rollout had them (``Rollout.mocap_pos``).
     qpos_adr : (n,) qpos addresses of the arm joints. Returns the number of frames.
     """
     if not panels:
@@ -276,6 +371,7 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
     duration = min(float(p.rollout.t[-1]) for p in panels)
     times = frame_times(duration, fps)
     qpos = [_frame_qpos(p.rollout, times, model.nq, np.asarray(qpos_adr)) for p in panels]
+    mocap = [_frame_mocap(p.rollout, times, model.nmocap) for p in panels]
     everything = [demo_world] + [p.rollout.ee for p in panels] + [p.reference for p in panels
                                                                    if p.reference is not None]
     pts = np.concatenate(everything)
@@ -295,17 +391,28 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
         bar = tqdm(total=len(times), desc="video", unit="frame", disable=not progress, leave=False)
         saved = float(model.vis.global_.fovy)
         model.vis.global_.fovy = fovy   # the free camera's field of view (render-only setting)
-        with SceneRenderer(model, pw, ph) as r:
+        shared = shared_renderer(model, pw, ph)
+        r = shared if shared is not None else SceneRenderer(model, pw, ph)
+        try:
             for j, t in enumerate(times):
                 images = []
-                for p, q, layer in zip(panels, qpos, layers):
+                for p, q, moved, layer in zip(panels, qpos, mocap, layers):
                     data.qpos[:] = q[j]
+                    if moved is not None:
+                        data.mocap_pos[:] = moved[j]
                     mujoco.mj_kinematics(model, data)
                     images.append(_panel_frame(r, data, cam, p, layer, demo_d, t, span))
                 bar.update(1)
                 yield images[0] if len(images) == 1 else tile(images, cols)
-        model.vis.global_.fovy = saved
-        bar.close()
+        except BaseException:
+            if shared is not None:          # an error or Ctrl-C inside a GL call: start afresh
+                release_shared_renderer()
+            raise
+        finally:
+            if shared is None:
+                r.close()
+            model.vis.global_.fovy = saved
+            bar.close()
 
     return write_video(path, frames(), pw * cols, ph * rows, fps)
 
@@ -318,8 +425,7 @@ def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, p
     image = r.render(data, cam)
     dt = float(ro.t[1] - ro.t[0])
     k = min(int(round(t / dt)), len(ro.ee) - 1)
-    w, h = r.width, r.height
-    proj = lambda x: project(r.scene, x, w, h)  # noqa: E731
+    proj = Projector(r.scene, r.width, r.height)
     if not hasattr(layer, "mask"):
         field_uv = None if panel.reference is None else proj(decimate(panel.reference, PATH_POINTS))
         draw_static(layer.image, proj(demo), field_uv, proj(ro.goal_world[None])[0], panel.title)

@@ -278,7 +278,8 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
 
     x264's ``ultrafast`` preset at CRF 23: measured against ``veryfast`` (scripts/bench_render.py,
     640x480 Panda, interleaved), 52-59 against 49-50 frames per wall second, for files about 4x
-    larger (0.64 MB against 0.15 MB for a 6.5 s run): the encoder shares 2 cores with llvmpipe."""
+    larger (0.64 MB against 0.15 MB for one 6.5 s run; about 0.2 MB per simulated second): the
+    encoder shares 2 cores with llvmpipe."""
     import imageio_ffmpeg
     import mediapy
 

@@ -155,7 +155,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="an obstacle in task units (repeatable): sphere:x,y[,z],r, box:x,y[,z],hx,hy[,hz] or "
                         "capsule:x1,y1[,z1],x2,y2[,z2],r, optionally ';margin=M' and ';velocity=VX,VY[,VZ]' "
                         "(it moves, units/s). The fields avoid it (lfd.avoid), the scene holds it as a "
-                        "MuJoCo geom (moving with it), and each run reports its robot-obstacle contacts "
+                        "MuJoCo geom (moving with it), the controller adds a 10 ms phase lead "
+                        "(sim.controller.Gains.lead_s), and each run reports its robot-obstacle contacts "
                         "and smallest clearance")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--goal-shift", metavar="T:DX,DY[,DZ]",
@@ -401,6 +402,7 @@ def run(args: argparse.Namespace) -> int:
     from lfd.cache import cached_field
     from lfd.obstacles import parse_obstacle
     from robots import load_robot
+    from sim.controller import Gains
     from sim.obstacles import obstacle_contacts
 
     progress = not args.quiet and sys.stderr.isatty()  # bars only on a terminal
@@ -438,7 +440,7 @@ def run(args: argparse.Namespace) -> int:
                          size_m=args.size_m, control_hz=args.control_hz, ik=args.ik, fps=args.fps)
     if obstacles:  # the same placement, on a scene that also holds the obstacles (moving ones move)
         exp = sim.Experiment(robot, demos, placement=exp.placement, control_hz=args.control_hz, ik=args.ik,
-                             fps=args.fps, obstacles=obstacles)
+                             fps=args.fps, obstacles=obstacles, gains=Gains(lead_s=OBSTACLE_LEAD_S))
         robot = exp.robot
     if goal_motion is not None:
         check_goal_motion(goal_motion, exp, demos)
@@ -528,6 +530,10 @@ def run(args: argparse.Namespace) -> int:
     n_videos = len(plan.videos) + (plan.side_by_side is not None) + (plan.grid is not None)
     print(f"wrote {json_path}" + ("" if args.no_video else f" and {n_videos} video(s) into {out}"))
     return 0
+
+
+#: the controller's phase lead with --obstacle (``sim.controller.Gains.lead_s``; the Panda's measured lag)
+OBSTACLE_LEAD_S = 0.01
 
 
 def parse_goal_motion(args: argparse.Namespace, dim: int) -> tuple[str, Any] | None:

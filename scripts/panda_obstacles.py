@@ -10,7 +10,9 @@ standard push (20 N, 0.2 s, on the hand) and the goal moved by 20% of the extent
 field). Per run: robot-obstacle contacts (the joint trajectory replayed
 through MuJoCo's collision detection, ``sim.obstacles.obstacle_contacts``), the smallest clearance,
 the final goal error, joint-limit violations and the peak joint speed against the limits. The bare
-field (no avoidance) is run too, to show what the obstacle does without it, and the bare field with
+field (no avoidance) is run too, to show what the obstacle does without it (both with the
+controller's ``--lead-ms`` phase lead, ``sim.controller.Gains.lead_s``, which keeps the arm from
+lagging outward where the avoiding field turns fast), and the bare field with
 the goal shift in a scene without the sphere ("free"). The peak joint speed is
 the largest measured |qdot_j| / v_max_j over the run.
 
@@ -34,7 +36,8 @@ from lfd.cache import cached_field  # noqa: E402
 from lfd.goal import shift_goal  # noqa: E402
 from lfd.obstacles import Sphere, avoid  # noqa: E402
 from robots import load_robot  # noqa: E402
-from sim.obstacles import obstacle_contacts, with_obstacles  # noqa: E402
+from sim.controller import Gains  # noqa: E402
+from sim.obstacles import obstacle_contacts  # noqa: E402
 
 
 def on_path(demos: lfd.DemoSet, fraction: float, radius: float, margin: float) -> Sphere:
@@ -54,6 +57,8 @@ def main() -> None:
     ap.add_argument("--learners", default="contraction,node")
     ap.add_argument("--settle", type=float, default=1.5, help="seconds the run continues after the demo duration")
     ap.add_argument("--shift-at", type=float, default=2.0, help="time of the goal shift, s")
+    ap.add_argument("--lead-ms", type=float, default=10.0,
+                    help="the controller's phase lead on the task velocity with the sphere (sim.controller.Gains)")
     args = ap.parse_args()
 
     demos = lfd.spiral()
@@ -66,8 +71,9 @@ def main() -> None:
           f"({1000 * sphere.radius * placement.scale:.1f} mm), margin {margin:.3f} units "
           f"({args.hand_clearance_mm:.0f} mm); path extent {extent:.2f} units "
           f"({1000 * extent * placement.scale:.0f} mm)")
-    scene = with_obstacles(robot, [sphere], placement)
-    exp = sim.Experiment(scene, demos, placement=placement, settle_s=args.settle)
+    exp = sim.Experiment(robot, demos, placement=placement, settle_s=args.settle, obstacles=[sphere],
+                         gains=Gains(lead_s=args.lead_ms / 1000.0))
+    scene = exp.robot
     free = sim.Experiment(robot, demos, placement=placement, settle_s=args.settle)
     angle = np.random.default_rng(0).uniform(0.0, 2.0 * np.pi)
     dx = 0.2 * extent * np.array([np.cos(angle), np.sin(angle)])

@@ -125,3 +125,32 @@ def test_fused_command_equals_the_python_path(name: str, actuation: str) -> None
 def test_unknown_dynamics_is_a_sim_error() -> None:
     with pytest.raises(SimError, match="unknown inverse dynamics"):
         _env("planar", dynamics="featherstone")
+
+
+def test_phase_lead_adds_the_command_difference_once_and_resets() -> None:
+    """Gains.lead_s: v_k + (lead / dt)(v_k - v_{k-1}), nothing at a run's first step, none by default;
+    the fused and the Python path both lead (each once)."""
+    from sim.controller import FieldController, Gains
+
+    robot, demos = _robot("panda"), _demos()
+    placement = sim.Placement.auto(robot, demos.x)
+    ctl = FieldController(robot, placement, 0.002, gains=Gains(lead_s=0.01))
+    v1, v2 = np.array([0.1, -0.2]), np.array([0.3, 0.1])
+    np.testing.assert_array_equal(ctl.lead(v1), v1)
+    np.testing.assert_allclose(ctl.lead(v2), v2 + 5.0 * (v2 - v1), rtol=1e-15)
+    ctl.reset(robot.q_home)
+    np.testing.assert_array_equal(ctl.lead(v2), v2)
+    plain = FieldController(robot, placement, 0.002)
+    np.testing.assert_array_equal(plain.lead(v1), v1)
+    np.testing.assert_array_equal(plain.lead(v2), v2)
+    # on the arm: the python and the fused paths agree with the lead on (so each leads once)
+    for fast in (True, False):
+        env = _env("panda", gains=Gains(lead_s=0.01))
+        if not fast:
+            env.task.controller._fast_ok = False
+        ro = execute(env, _field().single_point_evaluator())
+        if fast:
+            ee_fast = ro.ee
+    assert np.max(np.linalg.norm(ro.ee - ee_fast, axis=1)) < 1e-9
+    with pytest.raises(SimError, match="lead_s"):
+        FieldController(robot, placement, 0.002, gains=Gains(lead_s=-0.1))

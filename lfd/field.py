@@ -217,6 +217,19 @@ class ContractingField(VelocityField, ABC):
         """An upper bound of the field's Lipschitz constant in x, 1/s."""
 
 
+def is_time_varying(field: Any) -> bool:
+    """Whether ``field`` is f(x, t), called with the time as its second argument: a moving goal
+    (``lfd.goal``) or an obstacle-avoiding field (``lfd.obstacles``), else f(x)."""
+    return bool(getattr(field, "time_varying", False))
+
+
+def goal_at(field: Any, t: float) -> np.ndarray:
+    """The goal of ``field`` at time t [s], shape (d,): ``field.goal_at(t)`` for a moving goal
+    (``lfd.goal``), else its fixed ``goal``."""
+    fn = getattr(field, "goal_at", None)
+    return np.asarray(fn(t) if fn is not None else field.goal, dtype=np.float64)
+
+
 class FieldWrapper:
     """Base of the fields that wrap another one (``lfd.goal.MovingGoalField``,
     ``lfd.obstacles.AvoidingField``): the wrapped ``field``'s dimension, name and training record."""
@@ -249,7 +262,5 @@ class FieldWrapper:
         return getattr(self.field, "demo_box", None)
 
     def goal_at(self, t: float) -> np.ndarray:
-        """The goal at time t [s], shape (d,): the wrapped field's ``goal_at`` (a moving goal,
-        ``lfd.goal``), else its fixed goal."""
-        inner = getattr(self.field, "goal_at", None)
-        return np.asarray(inner(t) if inner is not None else self.field.goal, dtype=np.float64)
+        """The goal at time t [s], shape (d,): the wrapped field's (``goal_at``)."""
+        return goal_at(self.field, t)

@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 
 from lfd.errors import ConfigError
-from lfd.field import FieldWrapper, cached_single_point_evaluator
+from lfd.field import FieldWrapper, cached_single_point_evaluator, is_time_varying
 from lfd.integrate import rk4_step
 
 __all__ = ["Obstacle", "Sphere", "Box", "Capsule", "AvoidingField", "avoid", "parse_obstacle", "starts_outside"]
@@ -690,7 +690,7 @@ class AvoidingField(FieldWrapper):
         self.field = field
         self.obstacles: list[Obstacle] = obs
         self.reactivity = float(reactivity)
-        self._time_varying = bool(getattr(field, "time_varying", False))
+        self._time_varying = is_time_varying(field)
         self.units = _group(obs)
         goals = np.atleast_2d(field.goal_samples() if hasattr(field, "goal_samples") else field.goal)
         for u in self.units:

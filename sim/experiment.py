@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, TypeGuard, cast
 import numpy as np
 
 from lfd import DemoSet, VelocityField
+from lfd.field import goal_at, is_time_varying
 from lfd.integrate import rk4, rk4_phase
 from lfd.obstacles import Obstacle
 from robots import Kinematics, RobotModel
@@ -65,18 +66,6 @@ def scenario(name: str, seed: int = 0) -> tuple[Perturbation, ...]:
 def has_phase(field: VelocityField) -> TypeGuard[TrackingField]:
     """Whether the field carries a phase state (``phase_point_fn``)."""
     return hasattr(field, "phase_point_fn")
-
-
-def is_timed(field: Any) -> bool:
-    """Whether the field is time-varying, f(x, t): a moving goal (``lfd.goal``) or moving obstacles
-    (``lfd.obstacles``); the loop then passes the run's time."""
-    return bool(getattr(field, "time_varying", False))
-
-
-def goal_at(field: Any, t: float) -> np.ndarray:
-    """The field's goal at time t [s], shape (d,): ``field.goal_at(t)`` for a moving goal, else ``field.goal``."""
-    fn = getattr(field, "goal_at", None)
-    return np.asarray(fn(t) if fn is not None else field.goal, dtype=np.float64)
 
 
 @dataclass
@@ -186,7 +175,7 @@ class Experiment:
             start = env.task.start_task - env.task.schedule.goal_offset_task
             fn = PhaseLoop(field, env.task.control_dt, start)
         return execute(env, fn, fps=self.fps, progress=progress, desc=desc, hold=holds[0] if holds else None,
-                       timed=is_timed(field))
+                       timed=is_time_varying(field))
 
     def reference(self, field: VelocityField, rollout: Rollout) -> np.ndarray:
         """p_ref(t_k), shape (K+1, 3): the task-space rollout of the (goal-shifted) field from the
@@ -197,7 +186,7 @@ class Experiment:
         if has_phase(field):
             x, _ = rk4_phase(field.phase_point_fn(x0 - shift), x0 - shift, rollout.t)
             return self.placement.to_world(x + shift)
-        x = rk4(field.single_point_evaluator(), x0 - shift, rollout.t, timed=is_timed(field))
+        x = rk4(field.single_point_evaluator(), x0 - shift, rollout.t, timed=is_time_varying(field))
         return self.placement.to_world(x + shift)
 
     def _shift(self, field: VelocityField, ro: Rollout) -> np.ndarray:
@@ -243,7 +232,7 @@ class Experiment:
             phase_fn = field.phase_point_fn(start)
             return np.array([phase_fn(xk, float(sk))[0] for xk, sk in zip(x, ro.phase)])
         fn: Callable[..., np.ndarray] = field.single_point_evaluator()
-        if is_timed(field):
+        if is_time_varying(field):
             return np.array([fn(xk, float(tk)) for xk, tk in zip(x, ro.t)])
         return np.array([fn(xk) for xk in x])
 

@@ -119,18 +119,13 @@ def with_obstacles(robot: RobotModel, obstacles: Sequence[Obstacle], placement: 
     for ob, attrs in zip(obstacles, obstacle_geoms(obstacles, placement)):
         if ob.moving:   # the geom keeps its t = 0 coordinates inside a body moved by the displacement
             body = ET.SubElement(world, "body", {"name": attrs["name"], "mocap": "true",
-                                                 "pos": _numbers(_displacement(ob, placement, 0.0))})
+                                                 "pos": _numbers(placement.velocity_to_world(ob.offset(0.0)))})
             ET.SubElement(body, "geom", attrs)
         else:
             ET.SubElement(world, "geom", attrs)
     xml = ET.tostring(root, encoding="unicode")
     model = mujoco.MjModel.from_xml_string(xml, dict(robot.mj_assets))
     return dataclasses.replace(robot, mjcf_xml=xml, mj_model=model)
-
-
-def _displacement(ob: Obstacle, placement: Placement, t: float) -> np.ndarray:
-    """World displacement s A delta(t), shape (3,), m, of obstacle ``ob`` at time t [s]."""
-    return placement.scale * placement.axes @ ob.offset(t)
 
 
 def mocap_path(model: mujoco.MjModel, obstacles: Sequence[Obstacle], placement: Placement,
@@ -149,7 +144,7 @@ def mocap_path(model: mujoco.MjModel, obstacles: Sequence[Obstacle], placement: 
             raise ConfigError(f"obstacle {i + 1} ({ob.describe()}) moves but the scene has no mocap body "
                               f"'{PREFIX}{i}' (build it with sim.obstacles.with_obstacles)")
         m = int(model.body_mocapid[body])
-        out[:, m] = [_displacement(ob, placement, float(t)) for t in times]
+        out[:, m] = placement.velocity_to_world(np.array([ob.offset(float(t)) for t in times]))   # s A delta(t)
     return out
 
 

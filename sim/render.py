@@ -332,10 +332,8 @@ def _frame_qpos(rollout: Any, times: np.ndarray, nq: int, qpos_adr: np.ndarray) 
         raise RenderError("the rollout's qpos does not fit the model")
     if len(ft) >= len(times) and np.allclose(ft[:len(times)], times, atol=1e-9):
         return np.asarray(rollout.frame_qpos[:len(times)])
-    dt = float(rollout.t[1] - rollout.t[0])
-    k = np.minimum(np.round(times / dt).astype(int), len(rollout.q) - 1)
     out = np.repeat(np.asarray(rollout.frame_qpos[:1]), len(times), axis=0)
-    out[:, qpos_adr] = rollout.q[k]
+    out[:, qpos_adr] = rollout.q[rollout.steps_at(times)]
     return out
 
 
@@ -347,8 +345,7 @@ def _frame_mocap(rollout: Any, times: np.ndarray, nmocap: int) -> np.ndarray | N
         return None
     if path.shape[1] != nmocap:
         raise RenderError("the rollout's mocap bodies do not fit the model")
-    dt = float(rollout.t[1] - rollout.t[0])
-    return np.asarray(path)[np.minimum(np.round(times / dt).astype(int), len(path) - 1)]
+    return np.asarray(path)[rollout.steps_at(times)]
 
 
 def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np.ndarray,

@@ -129,13 +129,16 @@ class Rollout:
     cpu_s: float | None = None
     mocap_pos: np.ndarray | None = None
 
+    def steps_at(self, times: np.ndarray) -> np.ndarray:
+        """Index, shape (F,), of the control step nearest each of ``times`` (F,), s (the last step
+        for times after the run)."""
+        dt = float(self.t[1] - self.t[0])
+        return np.minimum(np.round(np.asarray(times) / dt).astype(int), len(self.t) - 1)
+
     @property
     def frame_mocap(self) -> np.ndarray | None:
         """The mocap bodies' positions at the video frames, shape (F, nmocap, 3), or None."""
-        if self.mocap_pos is None:
-            return None
-        dt = float(self.t[1] - self.t[0])
-        return self.mocap_pos[np.minimum(np.round(self.frame_t / dt).astype(int), len(self.t) - 1)]
+        return None if self.mocap_pos is None else self.mocap_pos[self.steps_at(self.frame_t)]
 
     @property
     def realtime_factor(self) -> float:

@@ -52,6 +52,7 @@ from dm_control.rl import control
 from dm_control.utils import rewards
 from dm_env import specs
 
+from lfd.field import goal_at, is_time_varying
 from robots import Kinematics, RobotModel, load_robot, solve_position_ik
 from sim.controller import FieldController, Gains
 from sim.errors import PlacementError, SimError
@@ -122,10 +123,6 @@ class FieldTrackingTask(control.Task):
         A velocity field in task units; adds the ``field_velocity`` observation.
     timed : bool
         ``field`` is time-varying, (x, t [s]) -> v, and gets the simulation time.
-    mocap_path : array, shape (K+1, nmocap, 3), optional
-        Mocap body positions (moving obstacles, ``sim.obstacles.mocap_path``) at the K+1 control
-        steps; each is written when its step's command is (after ``mj_step1``), so with MuJoCo's
-        computed torque the collision of step k still sees step k-1's positions.
     Others as ``sim.controller.FieldController``.
     """
 
@@ -135,7 +132,7 @@ class FieldTrackingTask(control.Task):
                  gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
                  field: Callable[..., np.ndarray] | None = None, dynamics: str = "mujoco",
-                 timed: bool = False, mocap_path: np.ndarray | None = None) -> None:
+                 timed: bool = False) -> None:
         model = robot.mj_model if mj_model is None else mj_model
         self.robot, self.placement, self.control_dt = robot, placement, float(control_dt)
         self.n_steps = int(round(duration_s / control_dt))
@@ -144,8 +141,6 @@ class FieldTrackingTask(control.Task):
             perturbations, placement, bodies, tool_body(robot, model), robot.n, self.n_steps, control_dt)
         self.perturbations = tuple(perturbations)
         self._nmocap = int(model.nmocap)
-        if mocap_path is not None:
-            self.set_mocap_path(mocap_path)
         self._start_nominal = np.asarray(start, dtype=np.float64) + self.schedule.start_offset_task
         self.start_task = self._start_nominal.copy()
         self.goal_task = np.asarray(goal, dtype=np.float64) + self.schedule.goal_offset_task
@@ -304,8 +299,10 @@ class FieldTrackingTask(control.Task):
         self.step_index = int(round(state[-1]))
 
     def set_mocap_path(self, path: np.ndarray) -> None:
-        """Move the mocap bodies along ``path``, shape (K+1, nmocap, 3), m, one row per control
-        step (``sim.obstacles.mocap_path``); from the next episode on."""
+        """Move the mocap bodies (moving obstacles) along ``path``, shape (K+1, nmocap, 3), m, one row
+        per control step (``sim.obstacles.mocap_path``), from the next episode on. Each row is
+        written when its step's command is (after ``mj_step1``), so with MuJoCo's computed torque
+        the collision of step k still sees step k-1's positions."""
         path = np.asarray(path, dtype=np.float64)
         if path.shape != (self.n_steps + 1, self._nmocap, 3) or not np.isfinite(path).all():
             raise SimError(f"mocap path must be finite with shape ({self.n_steps + 1}, {self._nmocap}, 3), "
@@ -409,7 +406,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                      actuation: str | None = None, perturbations: Sequence[Perturbation] = (),
                      rotation_ref: np.ndarray | None = None, gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None,
-                     dynamics: str = "mujoco", mocap_path: np.ndarray | None = None) -> control.Environment:
+                     dynamics: str = "mujoco") -> control.Environment:
     """A dm_control Environment of ``robot`` following task velocities (see the module docstring).
 
     One call from names::
@@ -449,7 +446,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
             rotation_ref)
     duration_s = 6.0 if duration_s is None else duration_s
     if goal is None and learner_field is not None:   # where a moving goal ends
-        goal = learner_field.goal_at(duration_s) if hasattr(learner_field, "goal_at") else learner_field.goal
+        goal = goal_at(learner_field, duration_s)
     placement, start, goal = _require(placement, start, goal, learner_field)
     physics = ArmPhysics.from_robot(robot) if physics is None else physics
     control_dt = _control_dt(control_hz, physics.model.opt.timestep)
@@ -458,7 +455,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                              gains=gains, feedforward=feedforward, mj_model=physics.model.ptr,
                              start_radius=start_radius, seed=seed,
                              field=None if learner_field is None else learner_field.single_point_evaluator(),
-                             timed=bool(getattr(learner_field, "time_varying", False)),
-                             dynamics=dynamics, mocap_path=mocap_path)
+                             timed=is_time_varying(learner_field),
+                             dynamics=dynamics)
     return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
                                legacy_step=False)

@@ -400,7 +400,7 @@ def plan_outputs(args: argparse.Namespace, out: Path, json_path: Path, learners:
 def run(args: argparse.Namespace) -> int:
     import lfd
     from lfd.cache import cached_field
-    from lfd.obstacles import parse_obstacle
+    from lfd.obstacles import MIN_GOAL_GAMMA, parse_obstacle
     from robots import load_robot
     from sim.controller import Gains
     from sim.obstacles import obstacle_contacts
@@ -427,7 +427,7 @@ def run(args: argparse.Namespace) -> int:
     obstacles = [parse_obstacle(text, demos.dim) for text in args.obstacle]
     goal_motion = parse_goal_motion(args, demos.dim)
     for o in obstacles:
-        if float(o.gamma(demos.goal)) < 1.01:
+        if float(o.gamma(demos.goal)) < MIN_GOAL_GAMMA:
             raise lfd.ConfigError(f"the demos' goal lies inside or too close to the {o.describe()}")
     robot = load_robot(args.robot, args.ee_frame, actuation=args.actuation, table=args.table)
     if args.camera is not None:
@@ -443,7 +443,7 @@ def run(args: argparse.Namespace) -> int:
                              fps=args.fps, obstacles=obstacles, gains=Gains(lead_s=OBSTACLE_LEAD_S))
         robot = exp.robot
     if goal_motion is not None:
-        check_goal_motion(goal_motion, exp, demos)
+        check_goal_motion(goal_motion, exp, demos, obstacles)
     pushes = "push" in args.perturb or args.side_by_side == "push" or args.grid
     if pushes and args.push_start + args.push_duration > exp.duration_s:
         raise lfd.ConfigError(f"the push ends at {args.push_start + args.push_duration:g} s, after the run "
@@ -552,9 +552,11 @@ def parse_goal_motion(args: argparse.Namespace, dim: int) -> tuple[str, Any] | N
     return None
 
 
-def check_goal_motion(motion: tuple[str, Any], exp: Any, demos: Any) -> None:
-    """Every goal the run will visit must be reachable, and a shift must come before the run ends."""
+def check_goal_motion(motion: tuple[str, Any], exp: Any, demos: Any, obstacles: list[Any]) -> None:
+    """Every goal the run will visit must be reachable and clear of the obstacles (as the demos'
+    goal is), and a shift must come before the run ends; checked before any training."""
     import lfd
+    from lfd.obstacles import MIN_GOAL_GAMMA
     from sim.errors import PlacementError
 
     kind, spec = motion
@@ -565,10 +567,13 @@ def check_goal_motion(motion: tuple[str, Any], exp: Any, demos: Any) -> None:
         goals = np.stack([demos.goal, demos.goal + dx])
     else:
         goals = spec[1]
+    flag = "--goal-shift" if kind == "shift" else "--goal-path"
+    for o in obstacles:
+        if float(np.min(o.gamma(goals))) < MIN_GOAL_GAMMA:
+            raise lfd.ConfigError(f"{flag}: the moving goal comes inside or too close to the {o.describe()}")
     try:
         exp.placement.check_reachable(exp.robot, goals, rotation=exp.rotation_ref)
     except PlacementError as e:
-        flag = "--goal-shift" if kind == "shift" else "--goal-path"
         raise lfd.ConfigError(f"{flag}: the moving goal leaves the arm's reach ({e})") from None
 
 

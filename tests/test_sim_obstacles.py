@@ -187,6 +187,10 @@ def test_demo_arm_goal_shift_flag(tmp_path, demo_arm_sink, capsys) -> None:
         rc = demo_arm.main([*base, "--out", str(bad), "--goal-shift", flag])
         err = capsys.readouterr().err.strip()
         assert rc == 2 and message in err and len(err.splitlines()) == 1 and not bad.exists(), err
+    # a shifted goal inside an obstacle is refused before any run, as the demos' own goal is
+    rc = demo_arm.main([*base, "--out", str(bad), "--goal-shift", "1.5:0.3,-0.2", "--obstacle", "sphere:0.3,-0.2,0.1"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "moving goal comes inside" in err and len(err.splitlines()) == 1 and not bad.exists(), err
 
 
 def test_moving_obstacle_moves_in_the_scene_and_is_avoided_on_the_panda() -> None:

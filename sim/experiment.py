@@ -172,8 +172,7 @@ class Experiment:
             task.set_mocap_path(path)
         fn: Callable[..., np.ndarray] = field.single_point_evaluator()
         if has_phase(field):
-            start = env.task.start_task - env.task.schedule.goal_offset_task
-            fn = PhaseLoop(field, env.task.control_dt, start)
+            fn = PhaseLoop(field, task.control_dt, task.start_task - task.schedule.goal_offset_task)
         return execute(env, fn, fps=self.fps, progress=progress, desc=desc, hold=holds[0] if holds else None,
                        timed=is_time_varying(field))
 

@@ -86,6 +86,9 @@ class RunResult:
         The measured tool path of the same run without its push or hold (None when it had neither).
     command : ndarray, shape (K+1, d), or None
         The field's command v = f(x - dg) at each measured position, task units per second.
+    goal_path : ndarray, shape (K+1, 3), or None
+        Where the goal was at each control step, world m, for a goal that moves during the run
+        (``lfd.goal``); None for a fixed goal (``Rollout.goal_world``).
     perturbations : tuple of Perturbation (and ``Hold``)
         The perturbation objects the run was made with, exactly as given to ``Experiment.run``
         (or those of the named scenario): ``p.describe()`` for the metrics JSON.
@@ -99,6 +102,7 @@ class RunResult:
     unperturbed: np.ndarray | None = None
     command: np.ndarray | None = None
     perturbations: tuple[Perturbation | Hold, ...] = ()
+    goal_path: np.ndarray | None = None
 
 
 class Experiment:
@@ -217,7 +221,17 @@ class Experiment:
         if ro.phase is not None:
             free_phase = None if window is None or cached is None else cached[2]
             metrics.update(self.phase_metrics(field, ro, window, free_phase))
-        return RunResult(field.learner, name, ro, ref, metrics, unperturbed, ro.command, tuple(perts))
+        return RunResult(field.learner, name, ro, ref, metrics, unperturbed, ro.command, tuple(perts),
+                         self.goal_path(field, ro))
+
+    def goal_path(self, field: VelocityField, ro: Rollout) -> np.ndarray | None:
+        """Where the goal of ``field`` was at each step of ``ro``, shape (K+1, 3), world m (with the
+        run's goal shift dg); None unless the goal moves during the run (``lfd.goal``)."""
+        if getattr(field, "goal_at", None) is None:
+            return None
+        shift = self._shift(field, ro)
+        path = np.array([goal_at(field, float(t)) for t in ro.t]) + shift
+        return None if np.ptp(path, axis=0).max() == 0 else self.placement.to_world(path)
 
     def command(self, field: VelocityField, ro: Rollout) -> np.ndarray:
         """The field's command at every control step, shape (K+1, d), task units per second:
@@ -266,7 +280,7 @@ class Experiment:
         results = result if isinstance(result, list) else [result]
         normal = None if self.placement.dim == 3 else self.placement.normal
         names = titles or [f"{r.learner} / {r.scenario}" for r in results]
-        panels = [Panel(r.rollout, r.reference, name) for r, name in zip(results, names)]
+        panels = [Panel(r.rollout, r.reference, name, r.goal_path) for r, name in zip(results, names)]
         return render_panels(self.physics.model.ptr, panels, self.demo_world, path, self.base,
                              self.robot.mj_qpos_adr, normal, width, height, fps, camera, progress=progress)
 

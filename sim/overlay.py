@@ -109,16 +109,15 @@ def arrow(draw: ImageDraw.ImageDraw, tail: np.ndarray, head: np.ndarray, rgb: RG
     draw.polygon([tuple(head), tuple(base + perp), tuple(base - perp)], fill=rgb)
 
 
-def draw_static(img: Image.Image, demo_uv: np.ndarray, field_uv: np.ndarray | None, goal_uv: np.ndarray,
-                title: str, legend: bool = True) -> None:
+def draw_static(img: Image.Image, demo_uv: np.ndarray, field_uv: np.ndarray | None, title: str,
+                legend: bool = True) -> None:
     """What stays the same in every frame of a panel: the demonstration and the field's rollout
-    (each (K, 2) pixels), the goal, the legend (top left) and the title (bottom right)."""
+    (each (K, 2) pixels), the legend (top left) and the title (bottom right)."""
     st = Style(img.height)
     draw = ImageDraw.Draw(img)
     _polyline(draw, demo_uv, DEMO_RGB, st.px(LEGEND[0][2], 6))
     if field_uv is not None:
         _polyline(draw, field_uv, FIELD_RGB, st.px(LEGEND[1][2], 4))
-    _dot(draw, goal_uv, st.px(7), GOAL_RGB)
     f = font(st.font_size)
     pad = st.px(6)
     if legend:
@@ -137,15 +136,18 @@ def draw_static(img: Image.Image, demo_uv: np.ndarray, field_uv: np.ndarray | No
         _boxed(draw, (img.width - pad, img.height - pad), title, f, "rb", pad)
 
 
-def draw_dynamic(img: Image.Image, trace_uv: np.ndarray, push_uv: tuple[np.ndarray, np.ndarray] | None,
-                 push_dot_uv: np.ndarray | None, text: FrameText) -> None:
-    """What changes from frame to frame: the robot's trace so far (K, 2), the point where the push
-    began, the push arrow (tail, head) while it acts, the time and the tracking error."""
+def draw_dynamic(img: Image.Image, trace_uv: np.ndarray, goal_uv: np.ndarray,
+                 push_uv: tuple[np.ndarray, np.ndarray] | None, push_dot_uv: np.ndarray | None,
+                 text: FrameText) -> None:
+    """What changes from frame to frame: the robot's trace so far (K, 2), the goal where it is now
+    (2,) (it moves with ``lfd.goal``; drawn over the trace, which ends on it), the point where the
+    push began, the push arrow (tail, head) while it acts, the time and the tracking error."""
     st = Style(img.height)
     draw = ImageDraw.Draw(img)
     _polyline(draw, trace_uv, TRACE_RGB, st.px(LEGEND[2][2], 2))
     if push_dot_uv is not None:
         _dot(draw, push_dot_uv, st.px(4), PUSH_RGB, PUSH_RGB)
+    _dot(draw, goal_uv, st.px(7), GOAL_RGB)
     if len(trace_uv) and np.isfinite(trace_uv[-1]).all():
         _dot(draw, trace_uv[-1], st.px(3.5), TRACE_RGB)
     if push_uv is not None:

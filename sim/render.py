@@ -308,11 +308,14 @@ AUTO_FOVY_DEG = 25.0         # the chosen camera is a long lens: the hand near i
 @dataclass(frozen=True)
 class Panel:
     """What one panel of a video shows: a ``sim.rollout.Rollout``, the field's own rollout from the
-    same start, ``reference`` (K+1, 3) world m (None: not drawn), and its ``title``."""
+    same start, ``reference`` (K+1, 3) world m (None: not drawn), its ``title`` and, for a goal that
+    moves during the run, where the goal is at each control step, ``goal_path`` (K+1, 3) world m
+    (None: the fixed ``Rollout.goal_world``)."""
 
     rollout: Any
     reference: np.ndarray | None
     title: str
+    goal_path: np.ndarray | None = None
 
 
 def panel_grid(n: int) -> tuple[int, int]:
@@ -430,7 +433,7 @@ def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, p
     proj = Projector(r.scene, r.width, r.height)
     if not hasattr(layer, "mask"):
         field_uv = None if panel.reference is None else proj(decimate(panel.reference, PATH_POINTS))
-        draw_static(layer.image, proj(demo), field_uv, proj(ro.goal_world[None])[0], panel.title)
+        draw_static(layer.image, proj(demo), field_uv, panel.title)
         layer.freeze()
     layer.stamp(image)
     trace = decimate(ro.ee[:k + 1], PATH_POINTS)
@@ -450,7 +453,8 @@ def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, p
             push_uv = (ends[0], ends[1])
     img = Image.fromarray(image)
     err = None if panel.reference is None else float(np.linalg.norm(ro.ee[k] - panel.reference[k]))
-    draw_dynamic(img, proj(trace), push_uv, dot_uv, FrameText(panel.title, t, err))
+    goal = ro.goal_world if panel.goal_path is None else panel.goal_path[k]
+    draw_dynamic(img, proj(trace), proj(goal[None])[0], push_uv, dot_uv, FrameText(panel.title, t, err))
     return np.asarray(img)
 
 

@@ -416,3 +416,19 @@ def test_demo_arm_rolls_back_what_a_failed_run_wrote(demo_arm, tmp_path: Path) -
     outputs.rollback()
     assert not (tmp_path / "out").exists()
     assert (tmp_path / "keep" / "old.mp4").read_bytes() == b"user's file"
+
+
+@pytest.mark.parametrize(("learner", "options"), [
+    ("node", {}), ("node", {"hidden": [7, 3, 5]}), ("contraction", {}),
+    ("contraction", {"layers": 3, "hidden": 5, "damping": False}), ("tracking", {})])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_size_check_counts_what_build_allocates(learner: str, options: dict[str, object], dim: int) -> None:
+    """The up-front parameter count (arithmetic, no meta-device build) equals the built module's."""
+    from lfd.learners import get_learner, parameter_count
+    from lfd.learners.base import Learner
+
+    cls = get_learner(learner)
+    config = cls.make_config(**options)
+    built = sum(p.numel() for p in cls.build(dim, config).parameters())
+    assert parameter_count(cls, dim, config) == built
+    assert Learner.parameter_count.__func__(cls, dim, config) == built      # the meta-device fallback agrees

@@ -171,6 +171,42 @@ def test_the_loop_feeds_a_time_varying_field_its_time(panda_goal_runs) -> None:
         "tracking_rmse_m"], 1e-3)
 
 
+def test_the_moving_goal_is_recorded_and_drawn_where_it_is(panda_goal_runs, tmp_path) -> None:
+    """RunResult.goal_path follows the shift (the plain run has none), and the video draws the goal
+    where it is: its dot moves between the first and the last frame, and stays put without a shift."""
+    import imageio_ffmpeg
+
+    exp, field, _, _, plain, shifted = panda_goal_runs
+    assert plain.goal_path is None
+    path, t = shifted.goal_path, shifted.rollout.t
+    assert path is not None and path.shape == (len(t), 3)
+    np.testing.assert_allclose(path[t < 1.0], np.broadcast_to(exp.placement.to_world(field.goal), path[t < 1.0].shape),
+                               atol=1e-12)
+    np.testing.assert_allclose(path[-1], shifted.rollout.goal_world, atol=1e-12)
+
+    def goal_centroids(result, name: str) -> np.ndarray:     # (2 frames, 2): goal-coloured pixels, legend excluded
+        video = tmp_path / name
+        exp.render(result, video, width=640, height=480, fps=10)
+        reader = imageio_ffmpeg.read_frames(str(video))
+        meta = next(reader)
+        w, h = meta["size"]
+        frames = [np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader]
+        out = []
+        for img in (frames[0], frames[-1]):
+            r, g, b = (img[..., i].astype(int) for i in range(3))
+            mask = (r > 200) & (g > 160) & (b < 90)                           # the goal's gold (sim.overlay.GOAL_RGB)
+            mask[:h // 3, :w // 3] = False                                     # the legend's goal dot
+            v, u = np.nonzero(mask)
+            assert len(u) > 5, "no goal dot in the frame"
+            out.append([u.mean(), v.mean()])
+        return np.array(out)
+
+    moved = goal_centroids(shifted, "moving.mp4")
+    still = goal_centroids(plain, "still.mp4")
+    assert np.linalg.norm(moved[1] - moved[0]) > 5.0          # pixels: the dot went with the goal
+    assert np.linalg.norm(still[1] - still[0]) < 1.0
+
+
 def test_demo_arm_goal_shift_flag(tmp_path, demo_arm_sink, capsys) -> None:
     import json
 

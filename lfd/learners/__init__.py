@@ -43,14 +43,9 @@ MAX_PARAMETERS = 20_000_000  # ~0.6 GB with Adam's state in float64; far beyond 
 
 
 def parameter_count(cls: type[Learner], dim: int, config: Any) -> int | None:
-    """Parameters of ``cls.build(dim, config)``, counted on torch's meta device (nothing is
-    allocated); None for a learner whose build cannot run there."""
-    try:
-        with torch.device("meta"):
-            module = cls.build(dim, config)
-        return int(sum(p.numel() for p in module.parameters()))
-    except Exception:  # noqa: BLE001  a build that needs real data: no up-front size check
-        return None
+    """Parameters of ``cls.build(dim, config)`` without building it (``Learner.parameter_count``);
+    None where the learner cannot tell."""
+    return cls.parameter_count(dim, config)
 
 
 def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,

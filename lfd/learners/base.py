@@ -35,6 +35,21 @@ class Learner(ABC):
             raise ConfigError(f"{cls.name}: {e}") from None
 
     @classmethod
+    def parameter_count(cls, dim: int, config: Any) -> int | None:
+        """The number of parameters ``build(dim, config)`` would allocate, or None if unknown.
+
+        Learners override this with arithmetic on the config. This fallback builds the module on
+        torch's meta device (nothing is allocated), whose first use imports about 800 modules
+        (~2 s); it returns None for a build that cannot run there (one that needs real data).
+        """
+        try:
+            with torch.device("meta"):
+                module = cls.build(dim, config)
+            return int(sum(p.numel() for p in module.parameters()))
+        except Exception:  # noqa: BLE001  a build that needs real data: no up-front size check
+            return None
+
+    @classmethod
     @abstractmethod
     def build(cls, dim: int, config: Any) -> torch.nn.Module:
         """A fresh module mapping x_n (B, d) -> dx_n/dt (B, d). Call after seeding torch."""

@@ -516,6 +516,12 @@ class NodeLearner(Learner):
     field_class: ClassVar[type[VelocityField]] = NodeField
 
     @classmethod
+    def parameter_count(cls, dim: int, config: NodeConfig) -> int:
+        """Weights and biases of the MLP d -> hidden... -> d of ``build``."""
+        widths = [dim, *config.hidden, dim]
+        return sum((i + 1) * o for i, o in zip(widths[:-1], widths[1:]))
+
+    @classmethod
     def build(cls, dim: int, config: NodeConfig) -> nn.Module:
         """A fresh NodeMLP x_n (B, d) -> dx_n/dt (B, d), in the training dtype."""
         module = NodeMLP(dim, config.hidden, config.activation, config.goal_equilibrium)

@@ -437,6 +437,11 @@ class TrackingLearner(Learner):
     field_class: ClassVar[type[VelocityField]] = TrackingField
 
     @classmethod
+    def parameter_count(cls, dim: int, config: TrackingConfig) -> int:
+        """0: the module holds its tables as buffers, filled in closed form (``fit``)."""
+        return 0
+
+    @classmethod
     def build(cls, dim: int, config: TrackingConfig) -> TrackingModule:
         """An empty float64 module (all-zero reference tables)."""
         return TrackingModule(dim, config).double()

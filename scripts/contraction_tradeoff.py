@@ -116,7 +116,9 @@ def fmt_kappa(k: float) -> str:
 Row = tuple[str, float, float, float, float]   # shape, KAPPA, rate, DTW, training s
 
 
-def _lasa_table(rows: list[Row], label: str, values: list[str]) -> list[str]:
+def _lasa_table(label: str, values: list[tuple[str, list[Row]]]) -> list[str]:
+    """A markdown table, one line per (label value, the rows it selects): mean and median DTW,
+    mean and max training time."""
     lines = [f"| {label} | mean DTW | median DTW | mean training (s) | max training (s) |", "|---|---|---|---|---|"]
     for v, sel in values:
         if sel:
@@ -138,14 +140,14 @@ def write_report(path: Path, lasa_rows: list[Row], spiral: list[dict[str, Any]],
              "Training times: one torch thread per worker, 2 workers on 2 cores, the first cell of each",
              "worker without its one-off import of torch._dynamo (about 2.5 s, paid by any torch optimizer).",
              "", f"## LASA ({len(shapes)} shapes, rate {rate:g}/s, seed 0): DTW against KAPPA", ""]
-    table = _lasa_table(by_kappa, "KAPPA (sqrt)",
+    table = _lasa_table("KAPPA (sqrt)",
                         [(f"{fmt_kappa(k)} ({math.sqrt(k):.3g})", [r for r in by_kappa if r[1] == k]) for k in KAPPAS])
     if node_dtw:
         vals = [node_dtw[s] for s in shapes if s in node_dtw]
         table.append(f"| NODE (no bound) | {np.mean(vals):.0f} | {np.median(vals):.0f} | - | - |")
     lines += table
     lines += ["", f"## LASA ({len(shapes)} shapes, KAPPA {fmt_kappa(kappa)}, seed 0): DTW against the rate", ""]
-    lines += _lasa_table(by_rate, "rate (1/s)", [(f"{q:g}", [r for r in by_rate if r[2] == q]) for q in RATES])
+    lines += _lasa_table("rate (1/s)", [(f"{q:g}", [r for r in by_rate if r[2] == q]) for q in RATES])
     lines += ["", "## Spiral: guarantee against measurement", "",
               "| KAPPA | rate (1/s) | feasible rate | RMSE | analytic sqrt(b/a) | worst measured growth | "
               "Lipschitz bound (1/s) | RK4 at 2 ms error / extent |", "|---|---|---|---|---|---|---|---|"]

@@ -227,7 +227,7 @@ class Experiment:
     def goal_path(self, field: VelocityField, ro: Rollout) -> np.ndarray | None:
         """Where the goal of ``field`` was at each step of ``ro``, shape (K+1, 3), world m (with the
         run's goal shift dg); None unless the goal moves during the run (``lfd.goal``)."""
-        if getattr(field, "goal_at", None) is None:
+        if not is_time_varying(field):
             return None
         shift = self._shift(field, ro)
         path = np.array([goal_at(field, float(t)) for t in ro.t]) + shift

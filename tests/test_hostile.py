@@ -424,11 +424,11 @@ def test_demo_arm_rolls_back_what_a_failed_run_wrote(demo_arm, tmp_path: Path) -
 @pytest.mark.parametrize("dim", [2, 3])
 def test_the_size_check_counts_what_build_allocates(learner: str, options: dict[str, object], dim: int) -> None:
     """The up-front parameter count (arithmetic, no meta-device build) equals the built module's."""
-    from lfd.learners import get_learner, parameter_count
+    from lfd.learners import get_learner
     from lfd.learners.base import Learner
 
     cls = get_learner(learner)
     config = cls.make_config(**options)
     built = sum(p.numel() for p in cls.build(dim, config).parameters())
-    assert parameter_count(cls, dim, config) == built
+    assert cls.parameter_count(dim, config) == built
     assert Learner.parameter_count.__func__(cls, dim, config) == built      # the meta-device fallback agrees

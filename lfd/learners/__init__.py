@@ -42,12 +42,6 @@ MAX_SEED = 2**63 - 1
 MAX_PARAMETERS = 20_000_000  # ~0.6 GB with Adam's state in float64; far beyond any demo's needs
 
 
-def parameter_count(cls: type[Learner], dim: int, config: Any) -> int | None:
-    """Parameters of ``cls.build(dim, config)`` without building it (``Learner.parameter_count``);
-    None where the learner cannot tell."""
-    return cls.parameter_count(dim, config)
-
-
 def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
           **options: Any) -> VelocityField:
     """Fit a learner to demos and return its field. The same seed gives the same model.
@@ -62,7 +56,7 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
         raise ConfigError(f"seed must be an integer between 0 and 2^63 - 1, got {str(seed)[:40]}")
     cls = get_learner(learner)
     config = cls.make_config(**options)
-    n_params = parameter_count(cls, demos.dim, config)
+    n_params = cls.parameter_count(demos.dim, config)
     if n_params is not None and n_params > MAX_PARAMETERS:
         raise ConfigError(f"{learner}: the model would have {n_params:,} parameters, more than the "
                           f"limit of {MAX_PARAMETERS:,}; use smaller layers")
@@ -102,7 +96,7 @@ def load(path: str, allow_nonfinite: bool = False) -> VelocityField:
     try:
         config = cls.make_config(**payload["config"])
         dim = int(payload["dim"])
-        n_params = parameter_count(cls, dim, config)
+        n_params = cls.parameter_count(dim, config)
         if n_params is not None and n_params > MAX_PARAMETERS:
             raise ConfigError(f"{n_params} parameters, more than {MAX_PARAMETERS}")
         module = cls.build(dim, config).double()

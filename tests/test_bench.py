@@ -23,7 +23,9 @@ from lfd.errors import ConfigError
 from lfd.io import finite_or_none
 from lfd.metrics import rmse
 
-ANGLE_RMSE_CONTRACTION_MAX = 7.0  # mm, contraction at --quick settings on Angle (measured 5.92 at KAPPA = 100)
+# mm, contraction on Angle: DTW, since Eq. (C5) fits paths, not timing (measured 426; 518 with the
+# loss that matched times)
+ANGLE_DTW_CONTRACTION_MAX = 600.0
 ANGLE_RMSE_DMP_MAX = 3.5          # mm, the DMP fitted to Angle's mean demo (measured 3.29)
 QUICK_CELLS = [f"{learner}__{shape}__seed0" for learner in ("contraction", "dmp") for shape in P.QUICK_SHAPES]
 
@@ -152,7 +154,7 @@ def test_contraction_converges_from_every_start_and_fits_angle(quick: dict[str, 
         assert c["convergence"]["rate"] == 1.0, (shape, c["convergence"])
         assert c["integrators"] == {"reproduce": "dopri5", "rollouts": "dopri5", "grid": "dopri5"}
         assert c["convergence"]["spurious_grid"] == 0.0 and c["convergence"]["n_grid"] == 35 * 35
-    assert cells["Angle"]["train"]["rmse"] < ANGLE_RMSE_CONTRACTION_MAX
+    assert cells["Angle"]["train"]["dtw"] < ANGLE_DTW_CONTRACTION_MAX
     dmp = {c["shape"]: c for c in quick["json"]["results"] if c["learner"] == "dmp"}
     assert all(c["convergence"]["rate"] == 1.0 for c in dmp.values())
 

@@ -206,6 +206,34 @@ def test_weak_model_reproduces_the_spiral(weak: ContractionField, spiral: lfd.De
     assert np.linalg.norm(xs[:, -1] - spiral.goal, axis=1).max() < 0.2
 
 
+def test_the_path_is_fitted_where_the_timing_cannot_be() -> None:
+    """LASA GShape starts from rest and speeds up, which no field with |f(x(t))| <= sqrt(b/a)
+    e^(-lambda t) |f(x(0))| can follow in time (training warns: the feasible rate is 0.43/s < 0.5/s).
+    Eq. (C5) fits directions and paths instead: the rollouts from the demo starts follow the demos'
+    paths (mean DTW 657 mm, measured; 2137 mm when the loss matched speeds and times) and arrive."""
+    from lfd.metrics import dtw
+
+    demos = lfd.lasa("GShape")
+    with pytest.warns(RateFeasibilityWarning):
+        field = lfd.train("contraction", demos, seed=0, progress=False)
+    ys = [field.closed_form_rollout(demos.x[i, :1], demos.t[i] - demos.t[i, 0])[0] for i in range(demos.n_demos)]
+    assert np.mean([dtw(y, x, step=4) for y, x in zip(ys, demos.x)]) < 1000.0
+    extent = float(np.ptp(demos.x.reshape(-1, 2), axis=0).max())
+    assert max(np.linalg.norm(y[-1] - demos.goal) for y in ys) < 0.1 * extent    # 0.05 measured
+
+
+def test_demos_that_rest_train_to_a_finite_model(spiral: lfd.DemoSet) -> None:
+    """Samples at rest have no direction: Eq. (C5) gives them weight 0 instead of a NaN gradient."""
+    x = np.concatenate([np.repeat(spiral.x[:, :1], 20, axis=1), spiral.x], axis=1)
+    t = np.broadcast_to(np.linspace(0.0, 5.0, x.shape[1]), x.shape[:2])
+    demos = lfd.DemoSet(t, x, name="resting")
+    assert (np.linalg.norm(demos.xd, axis=-1) < 1e-12).any()
+    field = lfd.train("contraction", demos, seed=0, progress=False, iterations=20)
+    h = field.history
+    assert not h["stopped_nonfinite"] and np.isfinite(h["loss"]).all() and h["loss"][-1] < h["loss"][0]
+    assert np.isfinite(field(spiral.x[:, 0])).all()
+
+
 def test_rk4_at_the_control_step_tracks_the_exact_flow(strong: ContractionField, spiral: lfd.DemoSet) -> None:
     """RK4 at 2 ms (500 Hz) from starts all over the 1.5x box stays within 1e-3 of the extent of Eq. (C4)."""
     lo, hi = spiral.bounds(0.5)

@@ -17,12 +17,19 @@ _FAST_TOL = 1e-9  # margin of the fast limit test over rounding: a qdot this clo
 class DlsGains:
     """damping: lambda_max; sv_threshold: eps, the smallest singular value below which damping starts;
     posture_gain: k_p [1/s] of the null-space pull toward q_home;
-    limit_margin: kept distance to joint limits [rad|m]."""
+    limit_margin: kept distance to joint limits [rad|m];
+    speed_fraction: the IK commands at most this fraction of each joint's v_max, in (0, 1]: the joint
+    servo overshoots its command slightly (computed torque on the Panda: up to 0.7% at 1.0)."""
 
     damping: float = 0.05
     sv_threshold: float = 0.05
     posture_gain: float = 1.0
     limit_margin: float = 0.02
+    speed_fraction: float = 0.97
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.speed_fraction <= 1.0:
+            raise ValueError(f"speed_fraction must be in (0, 1], got {self.speed_fraction!r}")
 
 
 class DlsBackend:
@@ -34,7 +41,8 @@ class DlsBackend:
     Away from singularities lambda = 0, J# = J^+ and the posture term moves only in the null space of J.
     Limits, in order: (1) position: each joint whose qdot would leave [q_min + margin, q_max - margin] within dt is
     fixed at the bound and the task is re-solved with the remaining joints (repeat until none violates);
-    (2) velocity: qdot is scaled uniformly by min_i v_max_i / |qdot_i| when above 1, keeping its direction;
+    (2) velocity: qdot is scaled uniformly by min_i v_i / |qdot_i| when above 1, keeping its direction
+    (v = speed_fraction v_max, the commanded speed limit);
     (3) a final clip to both bounds. A joint already beyond a soft bound (a measured q after servo overshoot) may
     not move further out. limit_hits counts the solve() calls where any of these changed qdot.
 
@@ -54,7 +62,7 @@ class DlsBackend:
         self._q_home = np.asarray(robot.q_home, dtype=float)
         self._q_lo = robot.q_min + gains.limit_margin
         self._q_hi = robot.q_max - gains.limit_margin
-        self._v_max = np.asarray(robot.v_max, dtype=float)
+        self._v_max = np.asarray(robot.v_max, dtype=float) * gains.speed_fraction   # the commanded limit
         self._all_rows = len(rows) == 6
         self._shift = self._eps2 * np.eye(len(rows))
         self._fast_speed2 = float(np.min(self._v_max)) ** 2 * (1.0 - _FAST_TOL)

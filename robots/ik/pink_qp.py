@@ -20,13 +20,19 @@ from robots.model import RobotModel
 class PinkGains:
     """posture_cost: weight of the posture task relative to the tool task (cost 1 per m and per rad);
     posture_gain: k_p [1/s] of the pull toward q_home; limit_margin: kept distance to joint limits [rad|m];
-    config_limit_gain: pink's ConfigurationLimit gain in (0, 1]; damping: Tikhonov regularisation of the QP."""
+    config_limit_gain: pink's ConfigurationLimit gain in (0, 1]; damping: Tikhonov regularisation of the QP;
+    speed_fraction: the QP's velocity limit as a fraction of v_max, in (0, 1] (as ``DlsGains``)."""
 
     posture_cost: float = 1e-3
     posture_gain: float = 1.0
     limit_margin: float = 0.02
     config_limit_gain: float = 0.5
     damping: float = 1e-12
+    speed_fraction: float = 0.97
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.speed_fraction <= 1.0:
+            raise ValueError(f"speed_fraction must be in (0, 1], got {self.speed_fraction!r}")
 
 
 def _task_costs(robot: RobotModel, rows: tuple[int, ...], rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -46,9 +52,10 @@ def _task_costs(robot: RobotModel, rows: tuple[int, ...], rotation: np.ndarray) 
 class PinkBackend:
     """qdot = dq / dt with dq the solution of pink's QP (solver daqp):
         min_dq  || J_b dq - log(T_b^-1 T_target) ||^2_W + c_p || dq - alpha (q_home - q) ||^2 + mu ||dq||^2
-        s.t.    -v_max dt <= dq <= v_max dt,   g min(q_min + margin - q, 0) <= dq <= g max(q_max - margin - q, 0)
+        s.t.    -v dt <= dq <= v dt,   g min(q_min + margin - q, 0) <= dq <= g max(q_max - margin - q, 0)
     with T_target = (exp(w dt) R, p + v dt) the current tool pose advanced by the twist [v; w], W the tool-frame
-    row selection, alpha = min(1, k_p dt). limit_hits counts the solve() calls whose solution touches a bound."""
+    row selection, alpha = min(1, k_p dt), v = speed_fraction v_max. limit_hits counts the solve() calls whose
+    solution touches a bound."""
 
     def __init__(self, robot: RobotModel, rows: tuple[int, ...], kinematics: Kinematics, gains: PinkGains) -> None:
         self.kinematics = kinematics
@@ -56,7 +63,7 @@ class PinkBackend:
         model = robot.pin_model.copy()
         model.lowerPositionLimit = robot.q_min + gains.limit_margin
         model.upperPositionLimit = robot.q_max - gains.limit_margin
-        model.velocityLimit = np.asarray(robot.v_max, dtype=float).copy()
+        model.velocityLimit = np.asarray(robot.v_max, dtype=float) * gains.speed_fraction
         self._model = model
         self._v_max = model.velocityLimit.copy()
         self._q_lo, self._q_hi = model.lowerPositionLimit.copy(), model.upperPositionLimit.copy()

@@ -57,7 +57,7 @@ of the field and the demos' paths, and their speed only weakly. In normalised un
 
     Eq. (C5): L = mean_i w_i |f(x_i)/|f(x_i)| - xd_i/|xd_i||^2
                   + mu mean_i w_i (log |f(x_i)| - log |xd_i|)^2
-                  + w_x (P + E + R) / mean |phi(x_demo) - y*|^2,
+                  + w_x (Q + E + R) / mean |phi(x_demo) - y*|^2,
 
 with w_i = |xd_i| / rms |xd| (a direction is only defined where the demo moves), mu the
 ``speed_weight`` and, per demo n, its latent rollout y_n(t) = y* + exp(A t)(phi(x_demo,n(0)) - y*)
@@ -65,7 +65,7 @@ with w_i = |xd_i| / rms |xd| (a direction is only defined where the demo moves),
 ``path_samples`` times tau_j evenly over [0, T_n] and its demo's latent points
 z_k = phi(x_demo,n(t_k)) at ``traj_points`` samples:
 
-    P = mean_n [mean_j min_k |y_n(tau_j) - z_k|^2 + mean_k min_j |y_n(tau_j) - z_k|^2]   (the paths, Chamfer)
+    Q = mean_n [mean_j min_k |y_n(tau_j) - z_k|^2 + mean_k min_j |y_n(tau_j) - z_k|^2]   (the paths, Chamfer)
     E = mean_n |y_n(T_n) - phi(x_demo,n(T_n))|^2                                         (arrive with the demo)
     R = mean_{n,r} |y_n(T_n (1 + r)) - y*|^2,   r in ``REST_TIMES``                      (then rest at the goal)
 

@@ -97,7 +97,7 @@ Eq. (C5)) traded the path for the timing. Matching the field's direction, the de
 with the speed only weakly, halved the mean DTW at every bound: 1146 -> 563 at KAPPA = 100,
 673 -> 377 at 1e4, 334 -> 279 unbounded, with training 4.2 -> 3.9 s per shape. The cost is the
 time-indexed error: a rollout leaves its start faster than the demo and slows down, so the LASA
-RMSE rose from 8.56 to 22.3 mm and the spiral's from 0.094 to 0.119 (reports/lasa.md).
+RMSE rose from 8.56 to 22.3 mm and the spiral's from 0.094 to 0.12 (reports/lasa.md).
 
 The rate now matters little (arrival is part of the loss): mean DTW 514 at 0.1/s, 552 at 0.2/s,
 563 at 0.5/s and 602 at 1/s. The default stays 0.5/s.

@@ -30,7 +30,7 @@ TRAINING = {
     "node": {"hidden": (32, 32), "iterations": 150, "lr": 1e-2, "lr_final": 1e-4, "seg": 10, "seg_start": 2,
              "batch": 128, "samples": 100},
     "contraction": {"layers": 2, "hidden": 16, "iterations": 30, "rate": 0.5, "batch": 1000,
-                    "traj_weight": 1.0, "traj_points": 25},
+                    "traj_weight": 1.0, "traj_points": 25, "speed_weight": 0.02, "path_samples": 50},
 }
 UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"
 

@@ -149,7 +149,9 @@ def test_field_lipschitz_bound_holds_far_away(spiral: lfd.DemoSet, scale: float)
 
 @pytest.mark.parametrize("options", [{"rate": 0.0}, {"rate": -1.0}, {"rate": float("nan")}, {"rate": True},
                                      {"rate": 1e300}, {"layers": 0}, {"hidden": 2.5}, {"max_condition": 1.0},
-                                     {"max_condition": float("nan")}, {"damping": "yes"}, {"no_such_option": 1}])
+                                     {"max_condition": float("nan")}, {"damping": "yes"}, {"no_such_option": 1},
+                                     {"speed_weight": -0.1}, {"path_samples": 1}, {"traj_points": 1},
+                                     {"speed_weight": 0.0, "traj_weight": 0.0}])
 def test_bad_options_are_config_errors(spiral: lfd.DemoSet, options: dict) -> None:
     with pytest.raises(ConfigError):
         lfd.train("contraction", spiral, progress=False, **options)

@@ -79,7 +79,7 @@ def test_joint_position_limits_hold(robots: dict[str, RobotModel], backend: str)
     tangent = np.array([-p[1], p[0]]) / np.linalg.norm(p[:2])
     beyond, ratio, closest = _drive(robot, ik, q, np.r_[0.3 * tangent, 0.0, 0.0, 0.0, 0.0], 1000)
     assert beyond <= 1e-9
-    assert ratio <= 1.0 + 1e-6
+    assert ratio <= SPEED_FRACTION * (1 + 1e-6)
     assert closest < 1e-6  # the limit was reached
     assert ik.limit_hits > 100
 
@@ -97,6 +97,18 @@ def test_joint_beyond_a_soft_limit_does_not_go_further(robots: dict[str, RobotMo
     qdot = ik.solve(q, np.r_[0.3 * np.array([-p[1], p[0]]) / np.linalg.norm(p[:2]), 0.0, 0.0, 0.0, 0.0], DT)
     assert np.all(np.isfinite(qdot)) and qdot[0] <= 1e-9
     assert ik.limit_hits == 1
+
+
+@pytest.mark.parametrize("backend", IK_BACKENDS)
+def test_speed_fraction_sets_the_commanded_limit_and_is_checked(robots: dict[str, RobotModel], backend: str) -> None:
+    """speed_fraction = 1 commands up to v_max itself; a fraction outside (0, 1] is a RobotError."""
+    robot = robots["panda"]
+    ik = DifferentialIK(robot, backend, speed_fraction=1.0)
+    _, ratio, _ = _drive(robot, ik, robot.q_home.copy(), np.array([3.0, -2.0, 1.0, 0, 0, 0]), 5)
+    assert 0.999 < ratio <= 1.0 + 1e-6
+    for bad in (0.0, -0.5, 1.5, float("nan"), True, "0.9"):
+        with pytest.raises(RobotError, match="speed_fraction"):
+            DifferentialIK(robot, backend, speed_fraction=bad)
 
 
 @pytest.mark.parametrize(("name", "backend"), CASES)
@@ -140,7 +152,7 @@ def test_singular_configuration_gives_bounded_finite_qdot(robots: dict[str, Robo
     for q in (np.zeros(3), np.array([0.0, 1e-5, 0.0])):  # arm stretched: no radial (x) velocity possible
         for twist in (np.array([1.0, 0, 0, 0, 0, 0]), np.array([0, 1.0, 0, 0, 0, 0])):
             qdot = ik.solve(q, twist, DT)
-            assert np.all(np.isfinite(qdot)) and np.all(np.abs(qdot) <= robot.v_max * (1 + 1e-6))
+            assert np.all(np.isfinite(qdot)) and np.all(np.abs(qdot) <= SPEED_FRACTION * robot.v_max * (1 + 1e-6))
 
 
 def test_dls_damping_bounds_the_gain_near_a_singularity(robots: dict[str, RobotModel]) -> None:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.lapack import dposv, dpotrf, dsyev
 
+from robots.errors import RobotError
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
@@ -28,8 +29,13 @@ class DlsGains:
     speed_fraction: float = 0.97
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.speed_fraction <= 1.0:
-            raise ValueError(f"speed_fraction must be in (0, 1], got {self.speed_fraction!r}")
+        check_speed_fraction(self.speed_fraction)
+
+
+def check_speed_fraction(v: object) -> None:
+    """``RobotError`` unless v is a real number in (0, 1] (the gains' ``speed_fraction``)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < v <= 1.0:
+        raise RobotError(f"IK gain speed_fraction must be a number in (0, 1], got {v!r}")
 
 
 class DlsBackend:

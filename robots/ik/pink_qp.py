@@ -12,6 +12,7 @@ from pink.limits import ConfigurationLimit, VelocityLimit
 from pink.tasks import FrameTask, PostureTask
 
 from robots.errors import RobotError
+from robots.ik.dls import check_speed_fraction
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
@@ -31,8 +32,7 @@ class PinkGains:
     speed_fraction: float = 0.97
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.speed_fraction <= 1.0:
-            raise ValueError(f"speed_fraction must be in (0, 1], got {self.speed_fraction!r}")
+        check_speed_fraction(self.speed_fraction)
 
 
 def _task_costs(robot: RobotModel, rows: tuple[int, ...], rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

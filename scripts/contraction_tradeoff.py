@@ -70,7 +70,7 @@ def lasa_cell(job: tuple[str, float, float]) -> Row:
     """(shape, KAPPA, rate, mean DTW over the demos, training time s, analytic sqrt(b/a), sampled
     sqrt(b/a), swirls' share of the budget) (``budget_use``)."""
     from lfd import lasa
-    from lfd.bench.evaluate import fit, score
+    from lfd.bench.evaluate import FieldModel, fit, score
 
     shape, kappa, rate = job
     demos = lasa(shape)
@@ -78,15 +78,18 @@ def lasa_cell(job: tuple[str, float, float]) -> Row:
     model = fit("contraction", demos, 0, {"max_condition": kappa, "rate": rate})
     train_s = time.perf_counter() - t0
     per, _ = score(model, demos, 4)
+    assert isinstance(model, FieldModel)
     return (shape, kappa, rate, float(np.mean(per["dtw"])), train_s, *budget_use(model.field, demos))
 
 
 def spiral_row(kappa: float, rate: float) -> dict[str, Any]:
     """The spiral measurements of the module docstring for one (KAPPA, rate)."""
     import lfd
+    from lfd.learners.contraction import ContractionField
 
     demos = lfd.spiral()
     field = lfd.train("contraction", demos, seed=0, progress=False, rate=rate, max_condition=kappa)
+    assert isinstance(field, ContractionField)
     xs = field.closed_form_rollout(demos.x[:, 0], demos.t[0])
     rmse = float(np.sqrt(((xs - demos.x) ** 2).sum(-1).mean()))
     lo, hi = demos.bounds(0.5)

@@ -55,10 +55,11 @@ def budget_use(field: Any, demos: Any) -> tuple[float, float, float]:
     all of them is a lower bound of the true sqrt(b/a). The share: sum over the swirls of
     log(sigma_max / sigma_min), over the same sum for every layer (``BoundedFlow.bounds``).
     """
+    from lfd.certify import grid
+
     lo, hi = demos.bounds(BUDGET_GROW)
-    axes = [np.linspace(lo[i], hi[i], GRID) for i in range(demos.dim)]
-    grid = np.stack(np.meshgrid(*axes), -1).reshape(-1, demos.dim)
-    eig = np.linalg.eigvalsh(field.metric(np.vstack([grid, demos.x.reshape(-1, demos.dim)])))
+    points = grid(lo, hi, GRID ** demos.dim)                    # GRID per axis, corners included
+    eig = np.linalg.eigvalsh(field.metric(np.vstack([points, demos.x.reshape(-1, demos.dim)])))
     sampled = math.sqrt(float(eig[:, -1].max() / eig[:, 0].min()))
     logs = [(b.kind, math.log(b.sigma_hi / b.sigma_lo)) for b in field.module.flow.bounds()]
     total = sum(v for _, v in logs)

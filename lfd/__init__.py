@@ -10,8 +10,8 @@ import importlib
 import os
 
 # Cross-process reproducibility. MKL picks alignment-dependent code paths: numpy buffers are only
-# 16-byte aligned and their alignment varies between processes (measured: 1 of 8 hash seeds changed
-# a contraction fit in the 8th digit, through the lstsq of its initial A). The learners therefore copy
+# 16-byte aligned and their alignment varies between processes, which can change a contraction fit in
+# its last digits through the lstsq of its initial A. The learners therefore copy
 # numpy input into torch's 64-byte-aligned memory (torch.tensor, not from_numpy), and MKL's
 # conditional numerical reproducibility is asked for here, before torch loads MKL.
 os.environ.setdefault("MKL_CBWR", "COMPATIBLE")

@@ -1,44 +1,25 @@
 """An honest contraction certificate: analytic bounds where the model has them, a dense check of
 Eq. (C1) everywhere, and a verdict that is never stronger than what was shown.
 
-For a field dx/dt = f(x) (the paper's Eq. (15)), whose virtual displacements obey d(dx)/dt = J_f dx
-(its Eq. (16)), and a metric M(x), the contraction condition with rate lambda (the paper's Eq. (17)
-with the metric's time derivative, Eq. (C1) of ``lfd.learners.contraction``) is
+For a field dx/dt = f(x) (the paper's Eq. (15)), with d(dx)/dt = J_f dx (its Eq. (16)), and a metric
+M(x), the contraction condition with rate lambda (the paper's Eq. (17), Eq. (C1) with dM/dt) is
 
-    Eq. (C1): Q(x) = J_f' M + M J_f + dM/dt <= -2 lambda M,   dM/dt = sum_k (dM/dx_k) f_k,
+    Eq. (C1): Q(x) = J_f' M + M J_f + dM/dt <= -2 lambda M,   i.e.
+    Eq. (K1): g(x) = max eig(L^-1 Q L^-T) <= -2 lambda,   M = L L' (Cholesky),
 
-that is, the largest generalised eigenvalue of (Q, M),
+checked on a grid with J_f and dM/dt from forward-mode autodiff in float64 (nothing is
+finite-differenced), up to the round-off slack of computing Q,
 
-    Eq. (K1): g(x) = max eig( L^-1 Q L^-T ),   M = L L' (Cholesky),
+    Eq. (K2): slack(x) = SAFETY eps (2 |J_f| |M| + |dM/dt|) / lambda_min(M)   (Frobenius norms).
 
-is at most -2 lambda. At every grid point J_f and dM/dt come from forward-mode autodiff of the
-field's torch module in float64 (``torch.func.jvp`` on the whole batch, one pass per column of
-J_f); nothing is finite-differenced. A field with a metric (``metric_normalized_torch``) is checked
-in it with its own rate; any other field (the NODE) in the identity metric, where
-g(x) = max eig(J_f + J_f'), with the requested rate or ``IDENTITY_RATE``.
-
-**Round-off.** Q is a sum of terms much larger than Q itself, so a grid point passes when
-g(x) <= -2 lambda + slack(x) with
-
-    Eq. (K2): slack(x) = SAFETY eps (2 |J_f| |M| + |dM/dt|) / lambda_min(M)   (Frobenius norms),
-
-the round-off of computing Q, seen through M^-1: it scales with cond(M) and with the size of the
-terms, never a fixed absolute number. Any NaN or inf at any point means NOT certified.
-
-**Verdicts.** ``certified`` is claimed only where it is proven:
-
-- a field with a structural guarantee (``metric_bounds``, ``condition_bound``, ``lipschitz_bound``:
-  Eq. (C1) holds identically on all of R^d, e.g. the contraction learner) is certified when the
-  analytic bounds are finite and the grid check confirms the implementation;
-- any other field is certified on the box only when a bound between the grid points holds too:
-  with L_J >= Lip(J_f) (``jacobian_lipschitz_bound``, e.g. the NODE's, from its weights) and h the
-  half-diagonal of a grid cell, g(x) <= g(x_i) + 2 L_J h for every x in the box (Weyl), so
-  max_i g(x_i) + 2 L_J h <= -2 lambda proves Eq. (C1) on the whole box. Where that bound is too
-  loose the verdict is ``not proven``; where a grid point violates Eq. (C1) it is ``not certified``.
-
-**Trajectories that leave the box.** Starts on the box (grid points, boundary included) are rolled
-out with RK4; those that leave the box are counted, and the grid is laid on the bounding box of the
-box and all those trajectories, so that the check covers where they go.
+A field with a metric (``metric_normalized_torch``) is checked in it with its own rate, any other
+(the NODE) in the identity metric with ``IDENTITY_RATE`` or the requested rate. ``certified`` is
+claimed only where it is proven: for a field whose analytic bounds make Eq. (C1) hold on all of R^d
+when they are finite and the grid confirms them; for any other field only when a bound between the
+grid points (from ``jacobian_lipschitz_bound``) closes the gaps ("not proven" where it is too loose,
+"not certified" where a grid point fails). Starts on the box are rolled out, and the grid covers
+where they go. Any NaN or inf means not certified. The reasoning in full: docs/equations.md,
+Eqs. (K1)-(K2).
 
 References
 ----------

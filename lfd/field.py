@@ -1,17 +1,29 @@
-"""The velocity-field interface shared by every learner.
+"""The velocity-field interface shared by every learner, and the declaration of a field's kind.
 
-A field is dx/dt = f(x): the paper's system without noise, Eq. (2), autonomous as its Eqs. (10)
-and (15) (f does not depend on t). Internally a torch module computes the normalised field
-f_n(x_n) (see ``lfd.normalization``); in user units f(x) = s f_n((x - goal) / s). Rollouts solve the
-paper's Eq. (5) through ``lfd.integrate``.
+A learned field is dx/dt = f(x): the paper's system without noise, Eq. (2), autonomous as its
+Eqs. (10) and (15). Internally a torch module computes the normalised field f_n(x_n) (see
+``lfd.normalization``); in user units f(x) = s f_n((x - goal) / s). Rollouts solve the paper's
+Eq. (5) through ``lfd.integrate``.
+
+Every field declares what it is, and code asks the declaration (``Field.kind``, ``Field.space``),
+never the field's attributes:
+
+- ``FieldKind.AUTONOMOUS``: f(x), the learners' fields (``VelocityField``);
+- ``FieldKind.TIME_VARYING``: f(x, t), called with the time [s] as its second argument (a moving
+  goal, ``lfd.goal``; an obstacle-avoiding field, ``lfd.obstacles``);
+- ``FieldKind.PHASED``: (dx/dt, ds/dt) = f(x, s) with a phase s in [0, 1] carried beside x (the
+  tracking learner, ``lfd.learners.tracking``; ``PhasedField``).
+
+``StateSpace.POSITION`` is R^d, positions only.
 """
 
 from __future__ import annotations
 
+import enum
 import os
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from typing import Any
+from typing import Any, ClassVar, Protocol, TypeGuard
 
 import numpy as np
 import torch
@@ -19,6 +31,117 @@ from torch import Tensor
 
 from lfd import integrate
 from lfd.normalization import Normalization
+from lfd.threads import torch_threads
+
+
+class FieldKind(enum.Enum):
+    """What a field's evaluator takes besides the state x (module docstring)."""
+
+    AUTONOMOUS = "autonomous"
+    TIME_VARYING = "time_varying"
+    PHASED = "phased"
+
+
+class StateSpace(enum.Enum):
+    """The space a field's state x lives in."""
+
+    POSITION = "position"   #: R^d, task units
+
+
+class Field(Protocol):
+    """What every field offers, whatever its kind: sim, the benchmark and the scripts use only this.
+
+    ``single_point_evaluator()`` returns the per-point function the control loop calls:
+    ``fn(x)`` for ``FieldKind.AUTONOMOUS``, ``fn(x, t)`` for ``FieldKind.TIME_VARYING``; a
+    ``FieldKind.PHASED`` field's loop goes through ``PhasedField.phase_point_fn`` instead, and its
+    ``single_point_evaluator`` is its autonomous view (the phase of the nearest reference point).
+    """
+
+    @property
+    def kind(self) -> FieldKind:
+        """What the evaluator takes besides x."""
+        ...
+
+    @property
+    def space(self) -> StateSpace:
+        """The space x lives in."""
+        ...
+
+    @property
+    def dim(self) -> int:
+        """The task dimension d."""
+        ...
+
+    @property
+    def goal(self) -> np.ndarray:
+        """The attractor at t = 0, shape (d,), task units."""
+        ...
+
+    @property
+    def learner(self) -> str:
+        """The learner's registry name (``node``, ``contraction``, ``tracking``, ...)."""
+        ...
+
+    @property
+    def history(self) -> dict[str, Any]:
+        """The training record (``loss``, ``train_time_s``, ...); empty for a hand-built field."""
+        ...
+
+    @property
+    def config(self) -> Any:
+        """The learner's options (a JSON-able dict), or None."""
+        ...
+
+    @property
+    def demo_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(lo, hi), each shape (d,): the training demos' bounding box, or None."""
+        ...
+
+    def goal_at(self, t: float) -> np.ndarray:
+        """The goal at time t [s], shape (d,)."""
+        ...
+
+    def goal_samples(self) -> np.ndarray:
+        """Every place the goal visits, shape (G, d) (one row for a fixed goal)."""
+        ...
+
+    def single_point_evaluator(self) -> Callable[..., np.ndarray]:
+        """The fast per-point function (see the class docstring)."""
+        ...
+
+    def __call__(self, x: np.ndarray, *args: Any) -> np.ndarray:
+        """dx/dt at x, shape (..., d) (and the time t [s] for ``FieldKind.TIME_VARYING``)."""
+        ...
+
+
+class PhasedField(Field, Protocol):
+    """A ``FieldKind.PHASED`` field: x and its phase s in [0, 1] evolve together (Eq. (T3) of
+    docs/equations.md), s advancing at the demos' pace and waiting when x is held back."""
+
+    @property
+    def duration(self) -> float:
+        """The demos' duration T, s: ds/dt = 1 / T on the reference."""
+        ...
+
+    def phase_point_fn(self, x0: np.ndarray | None = None) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
+        """(x, s) -> (dx/dt, ds/dt) for one point, conditioned on the start x0, shape (d,)."""
+        ...
+
+    def reference(self, s: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """The reference r(s), shape s.shape + (d,), conditioned on the start x0."""
+        ...
+
+    def rollout_with_phase(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1,
+                           s0: np.ndarray | float = 0.0, start: np.ndarray | None = None,
+                           step: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate (x, s) from x0, shape (B, d), and phase s0 over t, shape (T,): x of shape
+        (B, T, d) and s of shape (B, T)."""
+        ...
+
+
+def is_phased(field: Field) -> TypeGuard[PhasedField]:
+    """Whether ``field`` declares ``FieldKind.PHASED`` (narrows it to ``PhasedField``)."""
+    return field.kind is FieldKind.PHASED
 
 
 def cached_single_point_evaluator(field: Any) -> Callable[..., np.ndarray]:
@@ -33,7 +156,7 @@ def cached_single_point_evaluator(field: Any) -> Callable[..., np.ndarray]:
 
 
 class VelocityField:
-    """A learned autonomous velocity field x -> dx/dt.
+    """A learned autonomous velocity field x -> dx/dt (``FieldKind.AUTONOMOUS`` on positions).
 
     Parameters
     ----------
@@ -51,6 +174,9 @@ class VelocityField:
         (lo, hi), the bounding box of the training demos, user units; None when unknown (a field
         built by hand). ``lfd certify`` and ``lfd export --format npz-grid`` default to it, grown.
     """
+
+    kind: ClassVar[FieldKind] = FieldKind.AUTONOMOUS
+    space: ClassVar[StateSpace] = StateSpace.POSITION
 
     def __init__(self, module: torch.nn.Module, norm: Normalization, learner: str,
                  config: dict[str, Any], history: dict[str, Any] | None = None,
@@ -79,6 +205,14 @@ class VelocityField:
         """The attractor, shape (d,), in user units."""
         return self.norm.goal
 
+    def goal_at(self, t: float) -> np.ndarray:
+        """The goal at time t [s], shape (d,): fixed, ``goal``."""
+        return self.goal
+
+    def goal_samples(self) -> np.ndarray:
+        """The one place the goal is, shape (1, d)."""
+        return self.goal[None, :]
+
     # ---- torch path (differentiable, batched, no numpy round trip)
     def torch(self, x: torch.Tensor) -> torch.Tensor:
         """f(x) in user units; x : tensor, shape (..., d), float64."""
@@ -103,14 +237,14 @@ class VelocityField:
         """dx/dt, same shape as x : array, shape (..., d), user units.
 
         One point, shape (d,), takes the numpy single-point path (``single_point_evaluator``,
-        built once per field, a few us); a batch takes the torch path. Both agree to ~1e-12 relative.
+        built once per field); a batch takes the torch path. Both agree to 1e-12 relative.
         """
         x = np.asarray(x, dtype=np.float64)
         if x.shape[-1] != self.dim:
             raise ValueError(f"field expects points of dimension {self.dim}, got shape {x.shape}")
         if x.ndim == 1:
             return cached_single_point_evaluator(self)(x)
-        with torch.no_grad():
+        with torch.no_grad(), torch_threads(1):   # small batches: one thread is fastest (lfd.threads)
             return self.torch(torch.tensor(x)).numpy()
 
     def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4",
@@ -139,8 +273,8 @@ class VelocityField:
         """The fast path for one point, for control loops: ``field(x)`` on x of shape (d,) calls it.
 
         The default wraps ``_point_fn_normalized`` in the normalisation; it runs the torch path
-        (~30 us a call) unless a learner overrides ``_point_fn_normalized`` with a pure-numpy
-        forward pass (a few us), which must agree with the torch path to 1e-12.
+        unless a learner overrides ``_point_fn_normalized`` with a faster pure-numpy forward pass,
+        which must agree with the torch path to 1e-12.
 
         Returns
         -------
@@ -217,24 +351,28 @@ class ContractingField(VelocityField, ABC):
         """An upper bound of the field's Lipschitz constant in x, 1/s."""
 
 
-def is_time_varying(field: Any) -> bool:
-    """Whether ``field`` is f(x, t), called with the time as its second argument: a moving goal
-    (``lfd.goal``) or an obstacle-avoiding field (``lfd.obstacles``), else f(x)."""
-    return bool(getattr(field, "time_varying", False))
+def is_time_varying(field: Field) -> bool:
+    """Whether ``field`` declares ``FieldKind.TIME_VARYING``: f(x, t), called with the time [s]."""
+    return field.kind is FieldKind.TIME_VARYING
 
 
-def goal_at(field: Any, t: float) -> np.ndarray:
-    """The goal of ``field`` at time t [s], shape (d,): ``field.goal_at(t)`` for a moving goal
-    (``lfd.goal``), else its fixed ``goal``."""
-    fn = getattr(field, "goal_at", None)
-    return np.asarray(fn(t) if fn is not None else field.goal, dtype=np.float64)
+def goal_at(field: Field, t: float) -> np.ndarray:
+    """The goal of ``field`` at time t [s], shape (d,) (``Field.goal_at``)."""
+    return np.asarray(field.goal_at(t), dtype=np.float64)
 
 
 class FieldWrapper:
     """Base of the fields that wrap another one (``lfd.goal.MovingGoalField``,
-    ``lfd.obstacles.AvoidingField``): the wrapped ``field``'s dimension, name and training record."""
+    ``lfd.obstacles.AvoidingField``): ``FieldKind.TIME_VARYING`` on the wrapped ``field``'s space,
+    with its dimension, learner name and training record."""
 
-    field: Any
+    kind: ClassVar[FieldKind] = FieldKind.TIME_VARYING
+    field: Field
+
+    @property
+    def space(self) -> StateSpace:
+        """The wrapped field's state space."""
+        return self.field.space
 
     @property
     def dim(self) -> int:
@@ -244,23 +382,27 @@ class FieldWrapper:
     @property
     def learner(self) -> str:
         """The nominal field's learner name (for plots and reports)."""
-        return str(getattr(self.field, "learner", type(self.field).__name__))
+        return str(self.field.learner)
 
     @property
     def history(self) -> dict[str, Any]:
         """The nominal field's training record."""
-        return dict(getattr(self.field, "history", {}))
+        return dict(self.field.history)
 
     @property
     def config(self) -> Any:
         """The nominal field's training options (None for a field without them)."""
-        return getattr(self.field, "config", None)
+        return self.field.config
 
     @property
     def demo_box(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The nominal field's training-demo box (lo, hi), each shape (d,), or None."""
-        return getattr(self.field, "demo_box", None)
+        return self.field.demo_box
 
     def goal_at(self, t: float) -> np.ndarray:
         """The goal at time t [s], shape (d,): the wrapped field's (``goal_at``)."""
         return goal_at(self.field, t)
+
+    def goal_samples(self) -> np.ndarray:
+        """Every place the goal visits, shape (G, d): the wrapped field's."""
+        return self.field.goal_samples()

@@ -58,8 +58,6 @@ class MovingGoalField(FieldWrapper):
         Goals the shift visits (for ``lfd.obstacles``' check that no goal lies in an obstacle).
     """
 
-    time_varying = True
-
     def __init__(self, field: Any, shift: Callable[[float], tuple[np.ndarray, np.ndarray]],
                  samples: np.ndarray) -> None:
         self.field = field

@@ -1,7 +1,6 @@
 """The one place that integrates a velocity field: a solver table and the integrators that use it.
 
-Every rollout of the package goes through this module (``sim.experiment`` is to switch its
-single-point RK4 to ``rk4`` and ``rk4_phase``):
+Every rollout of the package goes through this module:
 
 - ``SOLVERS``: the torchdiffeq methods we accept, each marked fixed-step or adaptive (as
   torchdiffeq keeps its own ``SOLVERS``), with ``FIXED_STEP`` and ``ADAPTIVE`` derived from it.
@@ -31,14 +30,29 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+
+from lfd.threads import torch_threads
 
 if TYPE_CHECKING:
     import torch
 
-    from lfd.field import VelocityField
+    from lfd.normalization import Normalization
+
+
+class TorchField(Protocol):
+    """What the batched integrators need of a field (``lfd.field.VelocityField`` has it): its
+    normalised torch module, its normalisation and its own torch rollout."""
+
+    module: torch.nn.Module
+    norm: Normalization
+
+    def rollout_torch(self, x0: torch.Tensor, t: torch.Tensor, method: str = "rk4",
+                      options: dict[str, Any] | None = None) -> torch.Tensor:
+        """Integrate from x0, shape (B, d), over t, shape (T,): (B, T, d), user units."""
+        ...
 
 __all__ = [
     "ADAPTIVE", "FIXED_STEP", "SOLVERS", "Solver", "check_method", "odeint_kwargs", "rk4", "rk4_phase",
@@ -188,7 +202,7 @@ def solve(f: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], y0: torch.Ten
     return odeint(f, y0, t, method=method, options=options, **tol)
 
 
-def rollout(field: VelocityField, x0: np.ndarray, t: np.ndarray, method: str = "rk4",
+def rollout(field: TorchField, x0: np.ndarray, t: np.ndarray, method: str = "rk4",
             substeps: int = 1, step: float | None = None) -> np.ndarray:
     """Roll a field out in user units: what ``VelocityField.rollout`` does.
 
@@ -196,8 +210,8 @@ def rollout(field: VelocityField, x0: np.ndarray, t: np.ndarray, method: str = "
 
     Parameters
     ----------
-    field : VelocityField
-        The field; a subclass may override ``rollout_torch`` (e.g. to carry a phase state).
+    field : TorchField
+        The field (a ``VelocityField``); a subclass may override ``rollout_torch`` (e.g. to carry a phase state).
     x0 : array, shape (B, d) or (d,)
         Starts, user units.
     t : array, shape (T,)
@@ -221,13 +235,13 @@ def rollout(field: VelocityField, x0: np.ndarray, t: np.ndarray, method: str = "
     single = x0.ndim == 1
     t = np.asarray(t, dtype=np.float64)
     kw = odeint_kwargs(method, step=step, substeps=substeps, t=t)
-    with torch.no_grad():
+    with torch.no_grad(), torch_threads(1):   # small batches: one thread is fastest (lfd.threads)
         y = field.rollout_torch(torch.tensor(np.atleast_2d(x0)), torch.tensor(t), method,
                                 kw.get("options")).numpy()
     return y[0] if single else y
 
 
-def rollout_sample_units(field: VelocityField, x0: np.ndarray, h: np.ndarray, n: int,
+def rollout_sample_units(field: TorchField, x0: np.ndarray, h: np.ndarray, n: int,
                          method: str = "rk4") -> np.ndarray:
     """Roll a field out from N starts, each on its own uniform time grid, in one batch.
 
@@ -236,7 +250,7 @@ def rollout_sample_units(field: VelocityField, x0: np.ndarray, h: np.ndarray, n:
 
     Parameters
     ----------
-    field : VelocityField
+    field : TorchField
         A field that keeps the base ``VelocityField.rollout`` (no extra state).
     x0 : array, shape (N, d)
         Starts, user units.
@@ -259,7 +273,7 @@ def rollout_sample_units(field: VelocityField, x0: np.ndarray, h: np.ndarray, n:
         raise ValueError(f"rollout_sample_units needs a one-step fixed-step solver, not '{method}'")
     hs = torch.tensor(np.ascontiguousarray(h, dtype=np.float64))
     xn0 = field.norm.to_norm_torch(torch.tensor(np.asarray(x0, dtype=np.float64)))
-    with torch.no_grad():
+    with torch.no_grad(), torch_threads(1):
         yn = solve(lambda _tau, y: field.module(y) * hs, xn0, torch.arange(n, dtype=torch.float64),
                    method=method)
     return field.norm.from_norm_torch(yn).permute(1, 0, 2).numpy()
@@ -300,7 +314,7 @@ def rk4(f: Callable[..., np.ndarray], x0: np.ndarray, t: np.ndarray,
         substeps: int = 1, timed: bool = False) -> np.ndarray:
     """Classic RK4 (Eq. (8)) of dx/dt = f(x) (or of dx/dt = f(x, t) when ``timed``) on one point, in numpy.
 
-    For a field's single-point evaluator (``VelocityField.single_point_evaluator``, a few us a call): over
+    For a field's single-point evaluator (``VelocityField.single_point_evaluator``): over
     thousands of control steps it is far faster than the batched torch ``rollout``.
 
     Parameters

@@ -203,29 +203,16 @@ def chamfer_dtwd_std(a: np.ndarray, b: np.ndarray, std: np.ndarray | None = None
 
 
 def swept_area(a: np.ndarray, b: np.ndarray) -> float:
-    """Swept error area between two planar curves (Khansari-Zadeh & Billard, LASA literature),
-    counting every region between the curves with a positive sign.
+    """Swept error area between two planar curves, every region between them counted positive
+    (the LASA literature: Khansari-Zadeh & Billard 2011, doi:10.1109/TRO.2011.2159412).
 
-    .. math::
-
-        E = \\sum_{k=0}^{T-2} A(a_k, a_{k+1}, b_{k+1}, b_k)
-
-    with A the area enclosed by the quadrilateral p1 p2 p3 p4 = (a_k, a_{k+1}, b_{k+1}, b_k):
-
-    * a simple quadrilateral (convex or not): the shoelace formula
-      A = |sum_i (x_i y_{i+1} - x_{i+1} y_i)| / 2 (indices mod 4);
-    * a crossed ("bow-tie") quadrilateral, where the curve segments a_k a_{k+1} and b_k b_{k+1}
-      cross at X (the curves swap sides), split at X into its two lobes:
-      A = |tri(a_k, X, b_k)| + |tri(X, a_{k+1}, b_{k+1})|;
-    * where instead the rungs a_{k+1} b_{k+1} and b_k a_k cross at Y (the curves run in
-      opposite directions): A = |tri(a_k, a_{k+1}, Y)| + |tri(Y, b_{k+1}, b_k)|.
-
-    The sum of absolute lobe areas never under-counts the area swept between the curves; the
-    plain shoelace value of a bow-tie is the DIFFERENCE of its lobes (0 for a symmetric one).
-    A curve zig-zagging +-1 around a straight line of 100 unit-spaced samples gives 99 x 0.5 =
-    49.5 (``similaritymeasures.area_between_two_curves``, which re-orders each crossed
-    quadrilateral into a simple one, gives 99: the lobes plus the triangles between them).
-    Two parallel segments of length L at distance c give L c.
+    E = sum_{k=0}^{T-2} A(a_k, a_{k+1}, b_{k+1}, b_k), A the area of that quadrilateral: the shoelace
+    formula for a simple one; a crossed ("bow-tie") one is split into its two lobes (triangles) at the
+    crossing of the curve segments a_k a_{k+1} and b_k b_{k+1} (the curves swap sides) or of the rungs
+    a_{k+1} b_{k+1} and b_k a_k (they run in opposite directions), and their absolute areas added.
+    The sum of lobes never under-counts; the plain shoelace value of a bow-tie is the DIFFERENCE of
+    its lobes, and ``similaritymeasures.area_between_two_curves`` also counts the triangles between
+    them (tests/test_lasa_metrics.py).
 
     Parameters
     ----------
@@ -238,11 +225,6 @@ def swept_area(a: np.ndarray, b: np.ndarray) -> float:
     -------
     float
         E, in the curves' units squared.
-
-    References
-    ----------
-    Khansari-Zadeh, S. M., Billard, A. (2011). Learning stable nonlinear dynamical systems with
-    Gaussian mixture models. IEEE Transactions on Robotics 27(5), 943-957. doi:10.1109/TRO.2011.2159412
     """
     a, b = _pair(a, b)
     if a.shape[1] != 2:

@@ -59,12 +59,22 @@ def payload_checksum(payload: dict[str, Any]) -> str:
 
 
 def save_payload(payload: dict[str, Any], path: str | os.PathLike) -> None:
-    """Atomically write a model payload with its checksum (see module docstring)."""
+    """Atomically write a model payload with its checksum (see module docstring).
+
+    The archive is built in memory first, then written with ``lfd.io.atomic_write``: a failed
+    write (a full disk, a lost mount) is an ``OSError`` naming ``path`` and leaves no file behind
+    (torch's own writer would turn it into a RuntimeError on a half-written archive).
+    """
+    import io
+
     import torch
 
     payload = {"format_version": FORMAT_VERSION, **payload}
     payload["checksum"] = payload_checksum(payload)
-    atomic_write(path, lambda f: torch.save(payload, f))
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    data = buf.getbuffer()
+    atomic_write(path, lambda f: f.write(data))
 
 
 def load_payload(path: str | os.PathLike, allow_nonfinite: bool = False) -> dict[str, Any]:
@@ -88,8 +98,9 @@ def load_payload(path: str | os.PathLike, allow_nonfinite: bool = False) -> dict
             raise ModelError(f"{path}: not a readable model file (not a torch archive)")
     try:
         payload = torch.load(p, map_location="cpu", weights_only=True)
-    except OSError:
-        raise
+    except OSError as e:   # the file opened above: torch's reader fails on a damaged archive
+        raise ModelError(f"{path}: not a readable model file (truncated or corrupt: "
+                         f"{e.strerror or type(e).__name__})") from None
     except Exception as e:  # noqa: BLE001  any reader failure is a bad file; never show torch's advice
         raise ModelError(f"{path}: not a readable model file ({_load_reason(e)})") from None
     if isinstance(payload, dict) and payload.get("format_version") == 1:

@@ -2,8 +2,8 @@
 
 The learners, the certificate and the command line run small tensors (batches of a few hundred
 points, d x d matrices): one thread is as fast as several, immune to oversubscription on a
-shared machine, and gives the same floats on every run (measured: a spiral rollout 0.37 s on one
-thread, 3.7-31 s on two under load).
+shared machine (where two threads can be many times slower under load), and gives the same floats
+on every run.
 """
 
 from __future__ import annotations

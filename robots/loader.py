@@ -21,7 +21,11 @@ from robots.model import RobotModel
 
 BUILTIN_ROBOTS: tuple[str, ...] = ("planar", "panda")
 ACTUATIONS: tuple[str, ...] = ("position", "torque")
-ASSETS_DIR = Path(__file__).resolve().parent.parent / "assets"
+# the built-in MJCF files: package data of ``robots`` (robots/assets links to the repository's assets/,
+# where they live; an installed wheel holds a copy), else the repository's folder itself
+ASSETS_DIR = next((d for d in (Path(__file__).resolve().parent / "assets",
+                               Path(__file__).resolve().parent.parent / "assets") if d.is_dir()),
+                  Path(__file__).resolve().parent / "assets")
 
 DEFAULT_V_MAX_REVOLUTE = 2.0   # rad/s, when the file gives no velocity limit
 DEFAULT_V_MAX_PRISMATIC = 0.5  # m/s

@@ -91,7 +91,7 @@ def add_environment(spec: mujoco.MjSpec, eye: np.ndarray, target: np.ndarray, fl
         material = spec.add_material(name="floor_grid", texrepeat=[8, 8], texuniform=True, reflectance=0.05)
         material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "floor_grid"
         # The plane collides and is hidden (group 3); a thin box draws the floor: a software renderer
-        # (llvmpipe) took ~2x the frame time over an infinite plane's many lit quads.
+        # (llvmpipe) is much slower on an infinite plane's many lit quads.
         world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05],
                        pos=[0.0, 0.0, floor_z], material="floor_grid", contype=1, conaffinity=1, group=3)
         world.add_geom(name="floor_visual", type=mujoco.mjtGeom.mjGEOM_BOX, size=[FLOOR_HALF_M, FLOOR_HALF_M, 0.005],

@@ -3,7 +3,8 @@
 MuJoCo reads STL and OBJ meshes only; COLLADA (.dae) visual meshes, as example-robot-data ships
 the Panda's, are converted once with trimesh (and pycollada) into binary STL parts, one part per
 colour of the source (its materials' base colours), and kept in a user cache folder
-(``cache_dir``), keyed by the sha256 of the source file, written atomically. Nothing is copied
+(``cache_dir``), keyed by the sha256 of the source file, checksummed and written atomically
+(``convert_mesh``): a damaged cache file is converted again with one warning. Nothing is copied
 into the repository and nothing is fetched from the network.
 
 Visual geoms: group ``VISUAL_GROUP`` (2), contype = conaffinity = 0, no mass (the scene compiles
@@ -31,7 +32,7 @@ import numpy as np
 
 VISUAL_GROUP = 2
 COLLISION_GROUP = 3
-CONVERTER_VERSION = "3"   # part of the cache key: bump when the conversion changes
+CONVERTER_VERSION = "4"   # part of the cache key: bump when the conversion or the cache file changes
 CLUSTER_CELL_M = 0.008    # vertex-clustering grid of the converted meshes (see ``simplify``)
 DIRECT_FORMATS = (".stl", ".obj")
 _RGBA = tuple[float, float, float, float]   # for typing.cast
@@ -62,39 +63,84 @@ def cache_dir() -> Path:
 
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file and a rename (no half-written file)."""
+    """Write ``data`` to ``path`` through a temporary file beside it, fsync'ed, then a rename (and
+    an fsync of the folder): a crash leaves the old file or the new one, never half of one."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+    try:
+        folder = os.open(path.parent, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(folder)
+    except OSError:
+        pass
+    finally:
+        os.close(folder)
+
+
+def _digest(rgba: np.ndarray, parts: list[bytes]) -> np.ndarray:
+    """sha256 of a cache entry's content (its colours and its STL parts), as 32 uint8."""
+    h = hashlib.sha256(np.ascontiguousarray(rgba, dtype=np.float64).tobytes())
+    for stl in parts:
+        h.update(len(stl).to_bytes(8, "little"))
+        h.update(stl)
+    return np.frombuffer(h.digest(), dtype=np.uint8)
+
+
+def _read_cache(path: Path) -> list[tuple[bytes, tuple[float, float, float, float]]]:
+    """The parts of a cache file (an NPZ: ``rgba`` (n, 4), ``part0..``, ``sha256`` of them,
+    ``_digest``); ``ValueError`` with the reason when it is not intact."""
+    blob = path.read_bytes()
+    if not blob:
+        raise ValueError("empty")
+    try:
+        with np.load(io.BytesIO(blob), allow_pickle=False) as z:
+            rgba = np.asarray(z["rgba"], dtype=np.float64)
+            parts = [z[f"part{i}"].tobytes() for i in range(len(rgba))]
+            digest = np.asarray(z["sha256"])
+    except Exception as e:  # noqa: BLE001  a zip or npy reader error of any kind: a damaged file
+        raise ValueError(f"truncated or corrupt ({type(e).__name__})") from None
+    if rgba.ndim != 2 or rgba.shape[1] != 4 or not np.array_equal(digest, _digest(rgba, parts)):
+        raise ValueError("corrupt (checksum mismatch)")
+    return [(stl, cast(_RGBA, tuple(float(c) for c in rgba[i]))) for i, stl in enumerate(parts)]
 
 
 def convert_mesh(path: Path) -> list[tuple[bytes, tuple[float, float, float, float]]]:
     """The mesh file ``path`` (any format trimesh reads; COLLADA needs pycollada) as binary STL
     parts with their colours: [(stl bytes, rgba in [0, 1])], one part per distinct colour, scene
-    transforms applied. Cached in ``cache_dir()`` by content; raises ``ValueError`` when the file
-    cannot be read."""
+    transforms applied. Raises ``ValueError`` when the file cannot be read.
+
+    Cached in ``cache_dir()`` as ``<stem>-<key>.npz``, ``key`` from the sha256 of the source file
+    and ``CONVERTER_VERSION`` (the key of the inputs); the file carries the sha256 of its own
+    content (``_digest``). A cache file that is empty, truncated, altered or unreadable is never
+    used: the mesh is converted again and the file replaced, after one ``RuntimeWarning``.
+    """
     raw = path.read_bytes()
     key = hashlib.sha256(raw + CONVERTER_VERSION.encode()).hexdigest()[:24]
     cached = cache_dir() / f"{path.stem}-{key}.npz"
     if cached.is_file():
         try:
-            with np.load(cached) as z:
-                rgba = z["rgba"]
-                return [(z[f"part{i}"].tobytes(), cast(_RGBA, tuple(float(c) for c in rgba[i])))
-                        for i in range(len(rgba))]
-        except (OSError, ValueError, KeyError):
-            pass  # unreadable cache entry: convert again and overwrite it
+            return _read_cache(cached)
+        except (OSError, ValueError) as e:
+            reason = f"unreadable ({e.strerror or type(e).__name__})" if isinstance(e, OSError) else str(e)
+            warnings.warn(f"robots: mesh cache file {cached} is {reason}; converting {path.name} again",
+                          RuntimeWarning, stacklevel=2)
     parts = _convert(raw, path.suffix.lower().lstrip("."))
+    rgba = np.array([c for _, c in parts], dtype=np.float64).reshape(-1, 4)
     arrays = {f"part{i}": np.frombuffer(stl, dtype=np.uint8) for i, (stl, _) in enumerate(parts)}
     buf = io.BytesIO()
     # ignore: numpy's stubs let the **arrays match the bool allow_pickle keyword
-    np.savez(buf, rgba=np.array([c for _, c in parts], dtype=np.float64).reshape(-1, 4), **arrays)  # type: ignore[arg-type]
+    np.savez(buf, rgba=rgba, sha256=_digest(rgba, [stl for stl, _ in parts]), **arrays)  # type: ignore[arg-type]
     try:
         _atomic_bytes(cached, buf.getvalue())
     except OSError as e:  # a read-only home: convert again next time

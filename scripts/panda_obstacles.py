@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Issue 14 on the arm: the Panda runs an avoiding field around a sphere on its path. Prints, asserts nothing.
+"""Obstacles on the arm: the Panda runs an avoiding field around a sphere on its path. Prints, asserts nothing.
 
 For each learner (contraction, NODE; trained once on the default spiral and cached like
 scripts/demo_arm.py), a sphere is put on the demonstrated path (the mean demo at ``--at`` of its
@@ -87,14 +87,14 @@ def main() -> None:
         for name, f, g in (("bare", field, moved), ("avoid", avoid(field, [sphere]), avoid(moved, [sphere]))):
             for scen, run_field, perts in (("none", f, None), ("push", f, None), ("goal", g, ())):
                 r = exp.run(run_field, scen, perturbations=perts)
-                ro = r.rollout
+                ro = r.trace
                 rep = obstacle_contacts(scene, ro.q, ro.t)
                 peak = float(np.max(np.abs(ro.qdot) / np.asarray(robot.v_max)))
                 print(f"{learner:<12} {name:<6} {scen:<6} {rep.contacts:>8d} {1000 * rep.min_clearance_m:>9.2f} "
                       f"{1000 * r.metrics['final_goal_error_m']:>8.2f} {r.metrics['joint_limit_violations']:>7d} "
                       f"{peak:>15.3f}", flush=True)
         r = free.run(moved, "goal", perturbations=())   # the goal shift alone, in a scene without the sphere
-        peak = float(np.max(np.abs(r.rollout.qdot) / np.asarray(robot.v_max)))
+        peak = float(np.max(np.abs(r.trace.qdot) / np.asarray(robot.v_max)))
         print(f"{learner:<12} {'free':<6} {'goal':<6} {'-':>8} {'-':>9} {1000 * r.metrics['final_goal_error_m']:>8.2f} "
               f"{r.metrics['joint_limit_violations']:>7d} {peak:>15.3f}", flush=True)
 

@@ -23,6 +23,12 @@ row per robot x learner) and ``OUT/basin.png`` (start offsets in task space, col
 A run succeeds when it ends within ``--goal-tol`` m of its (shifted) goal without leaving the
 joint limits; a diverged simulation is a failed run (recorded with its error).
 
+A run whose worker process dies (kill -9, out of memory) is tried again
+(``lfd.bench.runner.run_parallel``, up to ``MAX_ATTEMPTS`` tries); its record's ``attempts`` counts
+the tries. A run given up is recorded as failed with the reason and ``lost: true`` (a later sweep
+tries it again); every other run finishes. Ctrl-C or SIGTERM stops the workers and ends with
+``sweep_arm: interrupted`` and exit code 130; the workers also end when this process is killed.
+
 Examples::
 
     python scripts/sweep_arm.py --out out/sweep --workers 2
@@ -139,7 +145,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     record.pop("model_dir")
     try:
         res = exp.run(field, spec.kind, perturbations=perts)
-        ro, m = res.rollout, res.metrics
+        ro, m = res.trace, res.metrics
         final = float(m["final_goal_error_m"])
         ok = final <= spec.goal_tol_m and ro.joint_limit_violations == 0
         record.update(success=bool(ok), error=None, metrics=m,
@@ -172,12 +178,22 @@ def grid(args: argparse.Namespace, model_dir: str) -> list[RunSpec]:
 
 
 def read_record(path: Path, key: str) -> dict[str, Any] | None:
-    """The record at ``path`` if it parses and carries ``key``, else None."""
+    """The record at ``path`` if it parses, carries ``key`` and is not a lost run's, else None."""
     try:
         rec = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return rec if isinstance(rec, dict) and rec.get("key") == key else None
+    return rec if isinstance(rec, dict) and rec.get("key") == key and not rec.get("lost") else None
+
+
+def lost_record(spec: RunSpec, failure: Any) -> dict[str, Any]:
+    """The record of a run given up after its worker process died on each try
+    (``lfd.bench.runner.Failure``): failed, with the reason; ``lost`` makes a later sweep retry it."""
+    record: dict[str, Any] = {"key": spec.key(), "name": spec.name, **asdict(spec)}
+    record.pop("model_dir")
+    record.update(success=False, error=f"given up after {failure.attempts} tries: {failure.reason}",
+                  metrics=None, attempts=failure.attempts, lost=True)
+    return record
 
 
 def sweep(specs: list[RunSpec], out: Path, workers: int, executor: str, address: str | None,
@@ -202,17 +218,24 @@ def sweep(specs: list[RunSpec], out: Path, workers: int, executor: str, address:
 
     stamps: list[float] = []
 
-    def finished(j: int, rec: dict[str, Any]) -> None:
+    def finished(j: int, rec: dict[str, Any], attempts: int) -> None:
         i = todo[j]
+        rec = {**rec, "attempts": attempts}
         write_json(runs / f"{specs[i].name}.json", rec)
         records[i] = rec
         stamps.append(time.perf_counter())
         bar.update()
 
+    def lost(j: int, failure: Any) -> None:
+        i = todo[j]
+        records[i] = lost_record(specs[i], failure)
+        write_json(runs / f"{specs[i].name}.json", records[i])
+        bar.update()
+
     t0 = time.perf_counter()
     try:
         run_parallel(run_one, [specs[i] for i in todo], min(workers, max(len(todo), 1)), executor, address,
-                     finished, paths=(HERE,))
+                     finished, paths=(HERE,), on_failed=lost)
     finally:
         bar.close()
     wall = time.perf_counter() - t0
@@ -438,6 +461,21 @@ def prepare_models(args: argparse.Namespace) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The sweep (module docstring); returns the exit code: 0 done, 2 bad input, 130 interrupted
+    (Ctrl-C or SIGTERM: the workers are stopped, every finished record is kept)."""
+    from lfd.cli import install_signal_handlers, restore_signal_handlers
+
+    previous = install_signal_handlers()   # SIGTERM is Ctrl-C: KeyboardInterrupt, exit 130
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("sweep_arm: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        restore_signal_handlers(previous)
+
+
+def _main(argv: list[str] | None) -> int:
     args = parse(argv)
     import sim  # noqa: F401  (MUJOCO_GL before mujoco)
     from lfd.errors import LfdError

@@ -5,9 +5,8 @@ Imported lazily by ``sim.controller`` (``import sim`` never pays for numba); eve
 once per machine (``cache=True`` keeps the machine code beside this file). The helpers are small
 ``njit`` functions that numba inlines into ``kernel`` (``inline="always"``): one compiled function.
 
-Layout of the parameter vector ``prm`` (``FieldController._pack``): ``HEADER`` scalars (plane?,
-spatial?, n . o, k_r, eps^2, fast speed^2, c_ref, 1/dt, k_d, posture gain, torque?, d, n, nv, m), then
-R_ref (9), k_n n (3), n (3), s A (3 d), then q_home, mid, fast_half, damping, lead, dof address (n each).
+The parameter vector ``prm`` is written by ``FieldController._pack``; its layout, and ``HEADER``,
+live in ``sim._kernel_layout``, which both sides import.
 """
 
 from __future__ import annotations
@@ -15,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sim.controller import _HEADER as HEADER
+from sim._kernel_layout import HEADER
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
@@ -173,7 +172,7 @@ def kernel(jac: np.ndarray, p: np.ndarray, rot: np.ndarray, v: np.ndarray, q: np
 
     jac : (6, n) tool Jacobian; p : (3,) tool position; rot : (3, 3) tool rotation; v : (d,) task
     velocity; q : (n,) joints; qvel, bias : (nv,) MuJoCo's qvel and qfrc_bias; qprev : (n,) the last
-    qdot_ref (updated); prm : the parameter vector (module docstring); out : (2 n + nv,).
+    qdot_ref (updated); prm : the parameter vector (layout: ``sim._kernel_layout``); out : (2 n + nv,).
     Returns 0 (done: out holds qdot_ref (n), a (nv, torque) and the command's base (n)), else the
     reason to take the Python path (1: rotation near pi, 2: near a singularity, 3: near a limit).
     """

@@ -8,26 +8,20 @@ Twist (world axes, LOCAL_WORLD_ALIGNED, rows vx vy vz wx wy wz) from a task velo
 qdot = IK(q, twist) (``robots.DifferentialIK``), then the actuator command:
 
 * ``position`` servos (MuJoCo tau = kp (u - q) - kv qdot + gravity compensation), with
-  u = q + qdot_ref (kv + b) / kp, so tau = kv (qdot_ref - qdot) + b qdot_ref: a velocity servo
-  that also pays the joint's viscous damping b (``feedforward=True``, the default), or the plain
-  u = q + qdot_ref dt (``feedforward=False``; it lags and under-speeds, see scripts/bench_loop.py).
-* ``torque`` motors, computed torque:
+  u = q + qdot_ref (kv + b) / kp, so tau = kv (qdot_ref - qdot) + b qdot_ref: a velocity servo that
+  also pays the joint's viscous damping b (``feedforward=True``, the default), or the plain
+  u = q + qdot_ref dt (``feedforward=False``; it lags and under-speeds).
+* ``torque`` motors, computed torque (the default actuation):
   tau = M(q) a + c(q, qdot) + b qdot = RNEA(q, qdot, a) + b qdot, a = qddot_ref + k_d (qdot_ref - qdot),
-  qddot_ref = (qdot_ref - qdot_ref_prev) / dt. With ``dynamics="mujoco"`` (the default) M(q) a comes
-  from ``mujoco.mj_mulM`` and c = ``qfrc_bias`` of the step's own ``mj_step1`` (the loop splits
-  ``mj_step`` into ``mj_step1`` / ``mj_step2``), so no second inverse-dynamics pass runs; with
-  ``dynamics="pinocchio"`` Pinocchio's RNEA on the same model. Both agree to ~1e-14 N m on the
-  Panda (same inertias and armature), and the closed-loop tool paths to ~1e-9 m
-  (tests/test_control_step.py).
+  qddot_ref = (qdot_ref - qdot_ref_prev) / dt, with M(q) a from ``mujoco.mj_mulM`` and c from the
+  step's own ``mj_step1`` (``dynamics="mujoco"``, no second inverse-dynamics pass) or Pinocchio's RNEA
+  on the same model (``dynamics="pinocchio"``); the two agree to round-off (tests/test_control_step.py).
 
-Fast path (``fast_command``): twist, the DLS solve (Cholesky fast path of ``robots.ik.dls``) and the
-actuator command are one compiled numba function (``sim._control_kernel.kernel``, compiled once per
-machine, cached beside that file); it hands back to the Python path (``twist`` / ``solve_ik`` / ``actuate``, same
-results) whenever the DLS fast path does not apply (near a singularity or a joint limit, tool
-orientation error near pi) and for the ``pink`` IK or custom IK rows.
-
-Choice of actuation: computed torque is the default; the measured comparison of the three
-commands and of the damping gain k_d is in reports/arm.md (scripts/bench_loop.py refreshes it).
+Fast path (``fast_command``): twist, the DLS solve and the actuator command in one compiled numba
+function (``sim._control_kernel.kernel``); it hands back to the Python path (``twist`` / ``solve_ik``
+/ ``actuate``, same results) near a singularity or a joint limit, for a tool orientation error near pi,
+and for the ``pink`` IK or custom IK rows. The measured comparison of the commands and of the gain
+k_d is in reports/arm.md (scripts/speed_loop.py refreshes it).
 """
 
 from __future__ import annotations
@@ -42,13 +36,12 @@ import pinocchio as pin
 
 from robots import DifferentialIK, RobotModel
 from robots.loader import ACTUATIONS as ACTUATIONS  # re-exported: the actuations a robot is loaded with
+from sim._kernel_layout import HEADER as _HEADER  # the kernel parameter vector's head
 from sim.errors import SimError
 from sim.placement import Placement
 
 DYNAMICS: tuple[str, ...] = ("mujoco", "pinocchio")
 
-# the kernel's parameter vector starts with _HEADER scalars (layout: ``sim._control_kernel``)
-_HEADER = 16
 _KERNEL: Any = None
 
 
@@ -69,12 +62,11 @@ class Gains:
     (0: none, the default).
 
     The lead cancels a first-order lag tau of the arm's velocity response to its command when
-    tau_lead = tau. Measured (``scripts/panda_obstacles.py``): the Panda's response behaves like
-    tau of about 10 ms, and a field whose direction turns fast (an obstacle-avoiding field beside
-    the obstacle) then lags outward on every pass; a task-space model with a 10 ms lag reproduces
-    the orbit this leaves around the goal (|x - g| 1.04 units after 6.5 s, against 0.02 without
-    the lag) and a 10 ms lead removes it (0.018). The lead amplifies fast changes of the command
-    by 1 + 2 tau_lead / dt (a push, joint-velocity noise), so it is off unless asked for."""
+    tau_lead = tau. The Panda's response lags like that, and a field whose direction turns fast (an
+    obstacle-avoiding field beside the obstacle) then drifts outward on every pass and can orbit the
+    goal; a lead of the lag's size removes the orbit (``scripts/panda_obstacles.py`` uses one). The
+    lead amplifies fast changes of the command by 1 + 2 tau_lead / dt (a push, joint-velocity
+    noise), so it is off unless asked for."""
 
     plane: float = 20.0
     rotation: float = 10.0
@@ -188,7 +180,7 @@ class FieldController:
         self._from_site = False
 
     def _pack(self, model: mujoco.MjModel) -> np.ndarray:
-        """The kernel's parameter vector, shape (_HEADER + 15 + 3 d + 6 n,) (layout: ``sim._control_kernel``)."""
+        """The kernel's parameter vector, shape (_HEADER + 15 + 3 d + 6 n,) (layout: ``sim._kernel_layout``)."""
         fp = self.ik._impl.fast_params(self.dt)
         n, d = self.robot.n, self.placement.dim
         torque = self.actuation == "torque"
@@ -227,7 +219,7 @@ class FieldController:
     def measure_site(self, q: np.ndarray) -> np.ndarray:
         """As ``measure``, for a state where MuJoCo has just run its kinematics at q (``mj_step1``)
         on the data given to ``bind``: the tool pose is MuJoCo's tool site (equal to Pinocchio's
-        frame to ~1e-16), and Pinocchio computes only the Jacobian (lazily, the pose too if the
+        frame up to round-off), and Pinocchio computes only the Jacobian (lazily, the pose too if the
         Python path needs it). Returns a view of ``data.site_xpos``, shape (3,)."""
         self._from_site = True
         self.kin.update(q)

@@ -5,7 +5,7 @@ The run starts at the start of demo ``demo_index`` and lasts that demo's duratio
 ``settle_s``. Push metrics compare with the same run without the push, which is run (once per
 field) when needed.
 
-A field with a phase (``lfd.learners.tracking``) runs through ``sim.rollout.PhaseLoop`` (the loop
+A ``FieldKind.PHASED`` field (``lfd.learners.tracking``) runs through ``sim.loop.PhaseLoop`` (the loop
 carries s), its reference is the joint (x, s) rollout, and its runs also report, from the phase
 trace: ``path_error_m`` (|p(t) - r(s(t))| in world at the end), ``path_recovery_time_s`` (after a
 push or a hold: from its start until |p - r(s)| stays <= 5 mm), ``phase_lag_s`` (T max_t (s_u(t) -
@@ -19,28 +19,25 @@ import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, TypeGuard, cast
+from typing import Any
 
 import numpy as np
 
-from lfd import DemoSet, VelocityField
-from lfd.field import goal_at, is_time_varying
+from lfd import DemoSet
+from lfd.field import Field, goal_at, is_phased, is_time_varying
 from lfd.integrate import rk4, rk4_phase
 from lfd.obstacles import Obstacle
 from robots import Kinematics, RobotModel
 from sim.camera import CameraSpec
 from sim.controller import Gains
 from sim.errors import SimError
+from sim.loop import FPS, Hold, PhaseLoop, RunTrace, execute
 from sim.metrics import RECOVERY_TOLERANCE_M, recovery_time, run_metrics
 from sim.obstacles import mocap_path, with_obstacles
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
 from sim.placement import Placement, base_position
 from sim.render import HEIGHT, WIDTH, Panel, render_panels
-from sim.rollout import FPS, Hold, PhaseLoop, Rollout, execute
 from sim.task import ArmPhysics, make_environment
-
-if TYPE_CHECKING:
-    from lfd.learners.tracking import TrackingField
 
 SCENARIOS: tuple[str, ...] = ("none", "offset", "push", "goal", "noise", "hold")
 
@@ -49,7 +46,7 @@ def scenario(name: str, seed: int = 0) -> tuple[Perturbation, ...]:
     """The perturbations of a named scenario: ``none``; ``offset`` (start 2 cm off the demo's
     start); ``push`` (20 N for 0.2 s on the tool's body at t = 1 s); ``goal`` (goal moved 2 cm);
     ``noise`` (joint-velocity noise 0.01 rad/s per control step); ``hold`` (the arm held still from
-    t = 1 s for 1 s, ``sim.rollout.Hold``). Directions are drawn from seed."""
+    t = 1 s for 1 s, ``sim.loop.Hold``). Directions are drawn from seed."""
     table: dict[str, tuple[Perturbation, ...]] = {
         "none": (),
         "offset": (StartOffset(distance_m=0.02, seed=seed),),
@@ -63,11 +60,6 @@ def scenario(name: str, seed: int = 0) -> tuple[Perturbation, ...]:
     return table[name]
 
 
-def has_phase(field: VelocityField) -> TypeGuard[TrackingField]:
-    """Whether the field carries a phase state (``phase_point_fn``)."""
-    return hasattr(field, "phase_point_fn")
-
-
 @dataclass
 class RunResult:
     """A scored run.
@@ -76,8 +68,8 @@ class RunResult:
     ----------
     learner, scenario : str
         The field's learner and the scenario's name (``SCENARIOS``, or a caller's own label).
-    rollout : Rollout
-        The measured run (``sim.rollout.Rollout``).
+    trace : RunTrace
+        The measured run (``sim.loop.RunTrace``).
     reference : ndarray, shape (K+1, 3)
         The unperturbed field rollout mapped to world, m.
     metrics : dict
@@ -88,7 +80,7 @@ class RunResult:
         The field's command v = f(x - dg) at each measured position, task units per second.
     goal_path : ndarray, shape (K+1, 3), or None
         Where the goal was at each control step, world m, for a goal that moves during the run
-        (``lfd.goal``); None for a fixed goal (``Rollout.goal_world``).
+        (``lfd.goal``); None for a fixed goal (``RunTrace.goal_world``).
     perturbations : tuple of Perturbation (and ``Hold``)
         The perturbation objects the run was made with, exactly as given to ``Experiment.run``
         (or those of the named scenario): ``p.describe()`` for the metrics JSON.
@@ -96,7 +88,7 @@ class RunResult:
 
     learner: str
     scenario: str
-    rollout: Rollout
+    trace: RunTrace
     reference: np.ndarray
     metrics: dict[str, Any]
     unperturbed: np.ndarray | None = None
@@ -126,7 +118,7 @@ class Experiment:
         Rate at which the rollouts keep the full qpos for video, frames per simulated second.
     obstacles : sequence of ``lfd.obstacles.Obstacle``
         Task-space obstacles put into the robot's scene (``sim.obstacles.with_obstacles``); moving
-        ones move with the run (mocap bodies, ``sim.obstacles.mocap_path``; ``Rollout.mocap_pos``).
+        ones move with the run (mocap bodies, ``sim.obstacles.mocap_path``; ``RunTrace.mocap_pos``).
         The field avoids them only if it is built to (``lfd.avoid``).
     """
 
@@ -157,10 +149,10 @@ class Experiment:
         self.physics = ArmPhysics.from_robot(robot)
         self.base = base_position(robot)
         self.fps = float(fps)   # the rollouts record the full qpos at this video frame rate
-        self._unperturbed: dict[tuple, tuple[VelocityField, np.ndarray, np.ndarray | None]] = {}
+        self._unperturbed: dict[tuple, tuple[Field, np.ndarray, np.ndarray | None]] = {}
 
-    def rollout(self, field: VelocityField, perturbations: tuple[Perturbation, ...] = (),
-                progress: bool = False, desc: str = "rollout") -> Rollout:
+    def simulate(self, field: Field, perturbations: tuple[Perturbation, ...] = (),
+                 progress: bool = False, desc: str = "run") -> RunTrace:
         """One closed-loop run of ``field`` with ``perturbations`` (a ``Hold`` among them clamps the arm;
         a phase field runs through ``PhaseLoop``)."""
         holds = [p for p in perturbations if isinstance(p, Hold)]
@@ -175,33 +167,33 @@ class Experiment:
         if path is not None:
             task.set_mocap_path(path)
         fn: Callable[..., np.ndarray] = field.single_point_evaluator()
-        if has_phase(field):
+        if is_phased(field):
             fn = PhaseLoop(field, task.control_dt, task.start_task - task.schedule.goal_offset_task)
         return execute(env, fn, fps=self.fps, progress=progress, desc=desc, hold=holds[0] if holds else None,
                        timed=is_time_varying(field))
 
-    def reference(self, field: VelocityField, rollout: Rollout) -> np.ndarray:
+    def reference(self, field: Field, trace: RunTrace) -> np.ndarray:
         """p_ref(t_k), shape (K+1, 3): the task-space rollout of the (goal-shifted) field from the
         run's measured start, x_ref = dg + Phi_t(x0 - dg), mapped to world (``lfd.integrate.rk4``;
         a time-varying field is integrated in time, from t = 0)."""
-        shift = self._shift(field, rollout)
-        x0 = self.placement.to_task(rollout.ee[0])
-        if has_phase(field):
-            x, _ = rk4_phase(field.phase_point_fn(x0 - shift), x0 - shift, rollout.t)
+        shift = self._shift(field, trace)
+        x0 = self.placement.to_task(trace.ee[0])
+        if is_phased(field):
+            x, _ = rk4_phase(field.phase_point_fn(x0 - shift), x0 - shift, trace.t)
             return self.placement.to_world(x + shift)
-        x = rk4(field.single_point_evaluator(), x0 - shift, rollout.t, timed=is_time_varying(field))
+        x = rk4(field.single_point_evaluator(), x0 - shift, trace.t, timed=is_time_varying(field))
         return self.placement.to_world(x + shift)
 
-    def _shift(self, field: VelocityField, ro: Rollout) -> np.ndarray:
+    def _shift(self, field: Field, ro: RunTrace) -> np.ndarray:
         """The run's constant goal shift dg (``sim.perturbations.GoalShift``), shape (d,), task units:
         its goal minus the field's own goal at the run's end."""
         return ro.goal_task - goal_at(field, self.duration_s)
 
-    def run(self, field: VelocityField, name: str, perturbations: tuple[Perturbation, ...] | None = None,
+    def run(self, field: Field, name: str, perturbations: tuple[Perturbation, ...] | None = None,
             seed: int = 0, progress: bool = False) -> RunResult:
         """Run and score scenario ``name`` (its perturbations, or the ones given)."""
         perts = scenario(name, seed) if perturbations is None else perturbations
-        ro = self.rollout(field, perts, progress, desc=f"{field.learner}/{name}")
+        ro = self.simulate(field, perts, progress, desc=f"{field.learner}/{name}")
         unperturbed = None
         window = ro.push_window_s or ro.hold_window_s
         if window is not None:
@@ -209,7 +201,7 @@ class Experiment:
             key = (id(field), rest)
             cached = self._unperturbed.get(key)
             if cached is None or cached[0] is not field:
-                free = self.rollout(field, rest, progress, desc=f"{field.learner}/unpushed")
+                free = self.simulate(field, rest, progress, desc=f"{field.learner}/unpushed")
                 cached = (field, free.ee, free.phase)
                 self._unperturbed[key] = cached
             unperturbed = cached[1]
@@ -224,7 +216,7 @@ class Experiment:
         return RunResult(field.learner, name, ro, ref, metrics, unperturbed, ro.command, tuple(perts),
                          self.goal_path(field, ro))
 
-    def goal_path(self, field: VelocityField, ro: Rollout) -> np.ndarray | None:
+    def goal_path(self, field: Field, ro: RunTrace) -> np.ndarray | None:
         """Where the goal of ``field`` was at each step of ``ro``, shape (K+1, 3), world m (with the
         run's goal shift dg); None unless the goal moves during the run (``lfd.goal``)."""
         if not is_time_varying(field):
@@ -233,14 +225,14 @@ class Experiment:
         path = np.array([goal_at(field, float(t)) for t in ro.t]) + shift
         return None if np.ptp(path, axis=0).max() == 0 else self.placement.to_world(path)
 
-    def command(self, field: VelocityField, ro: Rollout) -> np.ndarray:
+    def command(self, field: Field, ro: RunTrace) -> np.ndarray:
         """The field's command at every control step, shape (K+1, d), task units per second:
         v_k = f(x_k - dg) at the measured x_k (at the recorded phase s_k for a phase field),
-        recomputed from the recorded states: a check of ``Rollout.command``, which the loop records
+        recomputed from the recorded states: a check of ``RunTrace.command``, which the loop records
         as it feeds the controller (before IK)."""
         shift = self._shift(field, ro)
         x = self.placement.to_task(ro.ee) - shift
-        if has_phase(field) and ro.phase is not None:
+        if is_phased(field) and ro.phase is not None:
             start = ro.start_task - shift
             phase_fn = field.phase_point_fn(start)
             return np.array([phase_fn(xk, float(sk))[0] for xk, sk in zip(x, ro.phase)])
@@ -249,11 +241,10 @@ class Experiment:
             return np.array([fn(xk, float(tk)) for xk, tk in zip(x, ro.t)])
         return np.array([fn(xk) for xk in x])
 
-    def phase_metrics(self, field: VelocityField, ro: Rollout, window: tuple[float, float] | None,
+    def phase_metrics(self, field: Field, ro: RunTrace, window: tuple[float, float] | None,
                       free_phase: np.ndarray | None) -> dict[str, Any]:
         """The phase metrics of a run of a phase field (module docstring)."""
-        field = cast("TrackingField", field)   # only called for a phase field's run
-        assert ro.phase is not None
+        assert is_phased(field) and ro.phase is not None
         shift = self._shift(field, ro)
         x0 = self.placement.to_task(ro.ee[0]) - shift
         path = self.placement.to_world(field.reference(ro.phase, x0) + shift)      # (K+1, 3)
@@ -280,7 +271,7 @@ class Experiment:
         results = result if isinstance(result, list) else [result]
         normal = None if self.placement.dim == 3 else self.placement.normal
         names = titles or [f"{r.learner} / {r.scenario}" for r in results]
-        panels = [Panel(r.rollout, r.reference, name, r.goal_path) for r, name in zip(results, names)]
+        panels = [Panel(r.trace, r.reference, name, r.goal_path) for r, name in zip(results, names)]
         return render_panels(self.physics.model.ptr, panels, self.demo_world, path, self.base,
                              self.robot.mj_qpos_adr, normal, width, height, fps, camera, progress=progress)
 

@@ -1,14 +1,33 @@
-"""Choice of the OpenGL back-end for headless rendering, made before ``mujoco`` is imported.
+"""Choice of the OpenGL back-end for headless rendering, made lazily.
 
-MuJoCo and PyOpenGL read ``MUJOCO_GL`` / ``PYOPENGL_PLATFORM`` once, at import, so ``sim``
-calls :func:`select_backend` first thing. A value the user set is always respected.
+MuJoCo and dm_control read ``MUJOCO_GL`` once, at import, and open (dm_control: EGL) or load
+(MuJoCo: the back-end's library) a GL back-end right there, so a bad value, a missing library or
+a broken driver used to end ``import sim`` with a traceback, even for ``--help`` or a run without
+video. ``sim`` calls :func:`select_backend` first thing: it sets the default back-end and imports
+both with rendering off, so that importing ``sim`` never needs a GL back-end, then puts
+``MUJOCO_GL`` back for ``sim.render``, which opens its contexts itself. A value the user set is
+always respected. Before simulating a run whose video will be rendered, call
+:func:`require_backend`: a missing or broken back-end is then a ``RenderError`` with one line
+naming what to install or set, before any simulation.
 """
 
 from __future__ import annotations
 
 import ctypes.util
+import importlib
 import os
 import sys
+
+# the values sim.render opens a context with; MuJoCo's other names (glx, on, 1, ...) mean GLFW there
+GLFW_NAMES: tuple[str, ...] = ("glfw", "glx", "1", "on", "true", "enable", "enabled")
+OFFSCREEN: tuple[str, ...] = ("egl", "osmesa", *GLFW_NAMES)
+DISABLED: tuple[str, ...] = ("disable", "disabled", "off", "false", "0")
+INSTALL: dict[str, str] = {   # what to install, Debian/Ubuntu package names
+    "egl": "install libegl1 (apt install libegl1 libgl1-mesa-dri)",
+    "osmesa": "install libosmesa6 (apt install libosmesa6)",
+}
+_IMPORTED_WITHOUT_GL = ("mujoco", "dm_control._render")
+_ready: set[str] = set()   # back-ends whose probe context opened in this process
 
 
 def library_found(backend: str) -> bool:
@@ -18,14 +37,117 @@ def library_found(backend: str) -> bool:
 
 
 def select_backend() -> str:
-    """Set ``MUJOCO_GL`` unless the user did: ``egl`` by default, ``osmesa`` when libEGL is
-    missing but libOSMesa is installed (with a note on stderr). Returns the back-end in use."""
+    """Set ``MUJOCO_GL`` unless the user did (``egl`` by default, ``osmesa`` when libEGL is missing
+    but libOSMesa is installed, with a note on stderr), and import MuJoCo and dm_control's renderer
+    module with rendering off (``MUJOCO_GL=disable`` for those imports only). Never raises for a GL
+    problem and opens no GL context. Returns the back-end in use (lower case)."""
     user = os.environ.get("MUJOCO_GL")
     if user:
-        return user.lower().strip()
-    backend = "egl"
-    if not library_found("egl") and library_found("osmesa"):
-        backend = "osmesa"
-        print("sim: libEGL not found, rendering with OSMesa (slower)", file=sys.stderr)
-    os.environ["MUJOCO_GL"] = backend
+        backend = user.lower().strip()
+    else:
+        backend = "egl"
+        if not library_found("egl") and library_found("osmesa"):
+            backend = "osmesa"
+            print("sim: libEGL not found, rendering with OSMesa (slower)", file=sys.stderr)
+        os.environ["MUJOCO_GL"] = backend
+    _import_without_gl()
     return backend
+
+
+def _import_without_gl() -> None:
+    """Import MuJoCo and dm_control's renderer module (if not yet imported) with
+    ``MUJOCO_GL=disable``, then restore ``MUJOCO_GL``."""
+    todo = [name for name in _IMPORTED_WITHOUT_GL if name not in sys.modules]
+    if not todo:
+        return
+    saved = os.environ.get("MUJOCO_GL")
+    os.environ["MUJOCO_GL"] = "disable"
+    try:
+        for name in todo:
+            try:
+                importlib.import_module(name)
+            except ImportError:   # not installed: the import that needs it says so
+                pass
+    finally:
+        if saved is None:
+            os.environ.pop("MUJOCO_GL", None)
+        else:
+            os.environ["MUJOCO_GL"] = saved
+
+
+def backend_problem(backend: str | None = None) -> str | None:
+    """What stops ``backend`` (default: ``MUJOCO_GL``) from rendering offscreen, found without
+    opening a context: a value that renders nothing, an unknown value, a missing library, GLFW
+    without a display. None when nothing is known to be wrong."""
+    raw = (os.environ.get("MUJOCO_GL", "egl") if backend is None else backend).strip()
+    name = raw.lower()
+    if name in DISABLED:
+        return (f"MUJOCO_GL={raw} turns rendering off; unset it or set MUJOCO_GL=egl to render videos "
+                "(or run without videos)")
+    if name not in OFFSCREEN:
+        return (f"MUJOCO_GL={raw} is not an OpenGL back-end for offscreen rendering; set MUJOCO_GL=egl "
+                "(or osmesa), or unset it")
+    kind = "glfw" if name in GLFW_NAMES else name
+    if kind != "glfw" and not library_found(kind):   # the glfw package carries its own library
+        other = ", or unset MUJOCO_GL to render with EGL" if kind != "egl" else (
+            ", or libosmesa6 and set MUJOCO_GL=osmesa")
+        lib = {"egl": "libEGL", "osmesa": "libOSMesa"}[kind]
+        return f"MUJOCO_GL={raw}: {lib} is not installed; {INSTALL[kind]}{other}"
+    if kind == "glfw" and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return (f"MUJOCO_GL={raw} needs a display and DISPLAY is not set; unset MUJOCO_GL (or set "
+                "MUJOCO_GL=egl) to render headless")
+    return None
+
+
+def require_backend() -> None:
+    """Check that videos can be rendered with the back-end of ``MUJOCO_GL``: the static checks of
+    ``backend_problem``, then a 1 x 1 context of that back-end opened and freed (once per
+    process and back-end). Call it before simulating runs whose videos will be rendered.
+
+    Raises
+    ------
+    sim.errors.RenderError
+        One line naming the back-end, what went wrong and what to install or set.
+    """
+    from sim.errors import RenderError
+
+    raw = os.environ.get("MUJOCO_GL", "egl").strip()
+    name = raw.lower()
+    if name in _ready:
+        return
+    problem = backend_problem(raw)
+    if problem:
+        raise RenderError(problem)
+    kind = "glfw" if name in GLFW_NAMES else name
+    try:
+        _probe(kind)
+    except Exception as e:  # noqa: BLE001  the back-ends raise ImportError, RuntimeError, OSError, GL errors
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0].split(". ")[0][:160]
+        hint = {"egl": f"{INSTALL['egl']} with a working driver, or libosmesa6 and set MUJOCO_GL=osmesa",
+                "osmesa": f"{INSTALL['osmesa']}, or unset MUJOCO_GL to render with EGL",
+                "glfw": "unset MUJOCO_GL (or set MUJOCO_GL=egl) to render headless"}[kind]
+        raise RenderError(f"MUJOCO_GL={raw}: cannot open an OpenGL context ({first}); {hint}") from None
+    _ready.add(name)
+
+
+def _probe(kind: str) -> None:
+    """Open a 1 x 1 context of the back-end ``kind`` (egl, osmesa, glfw), make it current, free it;
+    raise when any step fails (GLFW reports some failures only as warnings and a missing window)."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if kind == "egl":
+            from mujoco.egl import GLContext
+        elif kind == "osmesa":
+            from mujoco.osmesa import GLContext
+        else:
+            from mujoco.glfw import GLContext
+        ctx = GLContext(1, 1)
+        try:
+            if not getattr(ctx, "_context", True):
+                said = [str(w.message) for w in caught]
+                raise RuntimeError(said[0] if said else "no context was created")
+            ctx.make_current()
+        finally:
+            ctx.free()

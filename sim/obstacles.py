@@ -2,7 +2,7 @@
 
 The field avoids an obstacle in task space (the tool point is kept out of it); this module puts
 the same obstacle into the robot's scene, so it is drawn in videos, physically collides with the
-arm, and can be checked: ``obstacle_contacts`` replays a rollout's joint trajectory through
+arm, and can be checked: ``obstacle_contacts`` replays a run's joint trajectory through
 MuJoCo's collision detection and reports every robot-obstacle contact and the smallest clearance
 between any robot geom and any obstacle.
 
@@ -17,7 +17,7 @@ The obstacle's ``margin`` is not drawn: it is clearance the field keeps, not geo
 obstacle's geom sits in a mocap body ``obstacle_<i>`` whose position is its world displacement
 s A delta(t) (``lfd.obstacles.Obstacle.offset``); ``mocap_path`` gives those positions at the
 control steps, which the control loop writes into ``MjData.mocap_pos`` before each step (so the arm
-collides with the obstacle where it is), the rollout records, the video draws and
+collides with the obstacle where it is), the run's trace records, the video draws and
 ``obstacle_contacts`` replays.
 """
 
@@ -179,7 +179,7 @@ def obstacle_contacts(robot: RobotModel, q: np.ndarray, t: np.ndarray | None = N
     ``t`` : array, shape (T,), the states' times (default: their indices). Collision detection runs
     on every state (``mj_kinematics`` + ``mj_collision``), so contacts are found at the states'
     spacing, not MuJoCo's internal step. ``mocap_pos`` : array, shape (T, nmocap, 3), optional: where
-    the mocap bodies (moving obstacles) were at each state (``sim.Rollout.mocap_pos``).
+    the mocap bodies (moving obstacles) were at each state (``sim.RunTrace.mocap_pos``).
     """
     q = np.asarray(q, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != robot.n:

@@ -200,7 +200,7 @@ _PIXEL = np.dtype((np.void, 3))
 
 def _pixels(image: np.ndarray) -> np.ndarray:
     """A view, shape (h w,), of image (h, w, 3) uint8, C-contiguous, with one 3-byte item per pixel:
-    a masked copy of whole pixels is then one ``np.put`` (several times faster than on (h w, 3))."""
+    a masked copy of whole pixels is then one ``np.put`` (much faster than on (h w, 3))."""
     return image.reshape(-1, 3).view(_PIXEL).reshape(-1)
 
 

@@ -78,7 +78,7 @@ class StartOffset(_Directed):
 class Push(_Directed):
     """Force ``force_n`` (N) along ``direction`` (world, shape (3,); default: drawn from ``seed``) on
     MuJoCo body ``body`` (default: the body carrying the tool site) during [start_s, start_s + duration_s).
-    The control loop records what it applied at each step (``sim.rollout.Rollout.applied_force``)."""
+    The control loop records what it applied at each step (``sim.loop.RunTrace.applied_force``)."""
 
     force_n: float = 20.0
     duration_s: float = 0.2

@@ -21,7 +21,7 @@ from robots import Kinematics, RobotModel, solve_position_ik
 from sim.errors import PlacementError
 
 PLANES: tuple[str, ...] = ("auto", "horizontal", "vertical")
-SIZE_FRACTION = 0.15     # default path size: this fraction of the robot's reach (Panda: ~13 cm)
+SIZE_FRACTION = 0.15     # default path size: this fraction of the robot's reach
 REACH_MARGIN_M = 0.04    # reachability is checked this far around the path (offsets, pushes)
 JOINT_MARGIN = 0.05      # ... with every joint this fraction of its range away from its limits
 IK_TOLERANCE_M = 1e-3    # ... and a position error below this

@@ -29,8 +29,8 @@ from tqdm import tqdm
 from lfd.io import atomic_path
 from sim.camera import CameraSpec, Projector, fixed_camera, task_camera
 from sim.errors import RenderError
+from sim.loop import FPS, frame_times
 from sim.overlay import FrameText, StaticLayer, draw_dynamic, draw_static, tile
-from sim.rollout import FPS, frame_times
 
 WIDTH, HEIGHT = 640, 480
 
@@ -144,11 +144,11 @@ class SceneRenderer:
                  max_geom: int = 4000, samples: int = 0) -> None:
         model.vis.global_.offwidth = max(int(model.vis.global_.offwidth), width)
         model.vis.global_.offheight = max(int(model.vis.global_.offheight), height)
-        model.vis.quality.offsamples = samples  # 4x MSAA costs llvmpipe about half its frame rate
+        model.vis.quality.offsamples = samples  # MSAA (off by default) is expensive on llvmpipe
         self.model, self.width, self.height = model, width, height
         self._ctx = open_gl_context(width, height)
         self.scene = mujoco.MjvScene(model, maxgeom=max_geom)
-        # Shadows, reflections and the skybox cost a software (llvmpipe) renderer ~5x the frame time.
+        # Shadows, reflections and the skybox cost a software (llvmpipe) renderer most of its frame time.
         for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
                      mujoco.mjtRndFlag.mjRND_SKYBOX):
             self.scene.flags[flag] = False
@@ -212,8 +212,8 @@ class SceneRenderer:
 
 def _nearest_mipmap(mjr: mujoco.MjrContext) -> None:
     """Sample the 2-D textures (the floor's) from the nearest mipmap level instead of blending two
-    (``GL_LINEAR_MIPMAP_NEAREST``): a software renderer (llvmpipe) then spends about a sixth less
-    time on a frame with a textured floor, and pixels change by at most 2 or 3 of 255. Needs PyOpenGL
+    (``GL_LINEAR_MIPMAP_NEAREST``): a software renderer (llvmpipe) then spends less time on a frame
+    with a textured floor, and pixels barely change. Needs PyOpenGL
     (as MuJoCo's EGL and OSMesa back-ends do); without it, nothing changes."""
     try:
         from OpenGL import GL
@@ -234,8 +234,8 @@ _release_at_exit: list[bool] = []          # [True] once release_shared_renderer
 
 def shared_renderer(model: mujoco.MjModel, width: int, height: int) -> SceneRenderer | None:
     """A ``SceneRenderer`` of ``model`` set to width x height, kept open for the next video:
-    making one (a GL context, and ``MjrContext`` uploading meshes and textures) costs a software
-    renderer about 0.4 s. The one kept is reused when it is of the same model object and its
+    making one (a GL context, and ``MjrContext`` uploading meshes and textures) is slow on a
+    software renderer. The one kept is reused when it is of the same model object and its
     offscreen buffer holds the size, else freed and replaced (so it keeps at most one model alive);
     it is freed at exit (``release_shared_renderer``). Returns None when the kept one belongs to another thread (its
     GL context is current there): the caller then makes its own."""
@@ -276,10 +276,8 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
     """Encode RGB frames, each shape (height, width, 3) uint8, as H.264 MP4 at ``fps``; the file
     appears atomically (temporary file, then rename). Returns the number of frames written.
 
-    x264's ``ultrafast`` preset at CRF 23: measured against ``veryfast`` (scripts/bench_render.py,
-    640x480 Panda, interleaved), 52-59 against 49-50 frames per wall second, for files about 4x
-    larger (0.64 MB against 0.15 MB for one 6.5 s run; about 0.2 MB per simulated second): the
-    encoder shares 2 cores with llvmpipe."""
+    x264's ``ultrafast`` preset at CRF 23: faster than ``veryfast`` for files a few times larger,
+    because the encoder shares the CPU cores with llvmpipe (scripts/speed_render.py measures both)."""
     import imageio_ffmpeg
     import mediapy
 
@@ -307,12 +305,12 @@ AUTO_FOVY_DEG = 25.0         # the chosen camera is a long lens: the hand near i
 
 @dataclass(frozen=True)
 class Panel:
-    """What one panel of a video shows: a ``sim.rollout.Rollout``, the field's own rollout from the
+    """What one panel of a video shows: a ``sim.loop.RunTrace``, the field's own rollout from the
     same start, ``reference`` (K+1, 3) world m (None: not drawn), its ``title`` and, for a goal that
     moves during the run, where the goal is at each control step, ``goal_path`` (K+1, 3) world m
-    (None: the fixed ``Rollout.goal_world``)."""
+    (None: the fixed ``RunTrace.goal_world``)."""
 
-    rollout: Any
+    trace: Any
     reference: np.ndarray | None
     title: str
     goal_path: np.ndarray | None = None
@@ -326,29 +324,29 @@ def panel_grid(n: int) -> tuple[int, int]:
     return cols, int(math.ceil(n / cols))
 
 
-def _frame_qpos(rollout: Any, times: np.ndarray, nq: int, qpos_adr: np.ndarray) -> np.ndarray:
-    """qpos, shape (F, nq), at ``times``: the rollout's recorded frames when they are these times,
+def _frame_qpos(trace: Any, times: np.ndarray, nq: int, qpos_adr: np.ndarray) -> np.ndarray:
+    """qpos, shape (F, nq), at ``times``: the run's recorded frames when they are these times,
     else its first frame with the arm joints (qpos addresses ``qpos_adr``, (n,)) from the control
     step nearest each time."""
-    ft = np.asarray(rollout.frame_t)
-    if rollout.frame_qpos.shape[1] != nq:
-        raise RenderError("the rollout's qpos does not fit the model")
+    ft = np.asarray(trace.frame_t)
+    if trace.frame_qpos.shape[1] != nq:
+        raise RenderError("the run's qpos does not fit the model")
     if len(ft) >= len(times) and np.allclose(ft[:len(times)], times, atol=1e-9):
-        return np.asarray(rollout.frame_qpos[:len(times)])
-    out = np.repeat(np.asarray(rollout.frame_qpos[:1]), len(times), axis=0)
-    out[:, qpos_adr] = rollout.q[rollout.steps_at(times)]
+        return np.asarray(trace.frame_qpos[:len(times)])
+    out = np.repeat(np.asarray(trace.frame_qpos[:1]), len(times), axis=0)
+    out[:, qpos_adr] = trace.q[trace.steps_at(times)]
     return out
 
 
-def _frame_mocap(rollout: Any, times: np.ndarray, nmocap: int) -> np.ndarray | None:
+def _frame_mocap(trace: Any, times: np.ndarray, nmocap: int) -> np.ndarray | None:
     """The mocap bodies' positions (moving obstacles), shape (F, nmocap, 3), at ``times``, or None
-    when the rollout moved none."""
-    path = getattr(rollout, "mocap_pos", None)
+    when the trace moved none."""
+    path = trace.mocap_pos
     if path is None:
         return None
     if path.shape[1] != nmocap:
-        raise RenderError("the rollout's mocap bodies do not fit the model")
-    return np.asarray(path)[rollout.steps_at(times)]
+        raise RenderError("the run's mocap bodies do not fit the model")
+    return np.asarray(path)[trace.steps_at(times)]
 
 
 def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np.ndarray,
@@ -364,7 +362,7 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
     (``sim.overlay``) the demonstration ``demo_world`` (T, 3), the field's rollout, the robot's
     trace so far, the goal, the push arrow while the push acts (plus 0.1 s) and the point where
     it began, a legend, the title, the simulated time and the tracking error |p(t) - p_ref(t)|;
-    moving obstacles where the rollout had them (``Rollout.mocap_pos``).
+    moving obstacles where the run had them (``RunTrace.mocap_pos``).
     qpos_adr : (n,) qpos addresses of the arm joints. Returns the number of frames.
     """
     if not panels:
@@ -373,11 +371,11 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
     pw, ph = (width // cols) // 2 * 2, (height // rows) // 2 * 2
     if pw < 16 or ph < 16:
         raise RenderError(f"{width}x{height} is too small for {len(panels)} panels")
-    duration = min(float(p.rollout.t[-1]) for p in panels)
+    duration = min(float(p.trace.t[-1]) for p in panels)
     times = frame_times(duration, fps)
-    qpos = [_frame_qpos(p.rollout, times, model.nq, np.asarray(qpos_adr)) for p in panels]
-    mocap = [_frame_mocap(p.rollout, times, model.nmocap) for p in panels]
-    everything = [demo_world] + [p.rollout.ee for p in panels] + [p.reference for p in panels
+    qpos = [_frame_qpos(p.trace, times, model.nq, np.asarray(qpos_adr)) for p in panels]
+    mocap = [_frame_mocap(p.trace, times, model.nmocap) for p in panels]
+    everything = [demo_world] + [p.trace.ee for p in panels] + [p.reference for p in panels
                                                                    if p.reference is not None]
     pts = np.concatenate(everything)
     span = float(np.max(np.ptp(pts, axis=0)))
@@ -426,7 +424,7 @@ def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, p
                  layer: StaticLayer, demo: np.ndarray, t: float, span: float) -> np.ndarray:
     """One panel's image at time t: the scene, the static layer (drawn on the first call), then
     the overlays that change."""
-    ro = panel.rollout
+    ro = panel.trace
     image = r.render(data, cam)
     dt = float(ro.t[1] - ro.t[0])
     k = min(int(round(t / dt)), len(ro.ee) - 1)
@@ -456,19 +454,6 @@ def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, p
     goal = ro.goal_world if panel.goal_path is None else panel.goal_path[k]
     draw_dynamic(img, proj(trace), proj(goal[None])[0], push_uv, dot_uv, FrameText(panel.title, t, err))
     return np.asarray(img)
-
-
-def render_rollout(model: mujoco.MjModel, rollout: Any, demo_world: np.ndarray, path: str | os.PathLike,
-                   base: np.ndarray, normal: np.ndarray | None = None, width: int = WIDTH,
-                   height: int = HEIGHT, fps: float = FPS, progress: bool = False,
-                   reference: np.ndarray | None = None, title: str = "",
-                   camera: CameraSpec = CameraSpec(), qpos_adr: np.ndarray | None = None) -> int:
-    """The MP4 of one ``sim.rollout.Rollout`` (``render_panels`` with one panel); returns the
-    number of frames. ``reference`` (K+1, 3): the field's own rollout (None: not drawn)."""
-    adr = np.arange(rollout.q.shape[1]) if qpos_adr is None else qpos_adr
-    return render_panels(model, [Panel(rollout, reference, title)], demo_world, path, base, adr, normal,
-                         width, height, fps, camera, progress=progress)
-
 
 def _interrupted(e: BaseException) -> bool:
     """Whether a KeyboardInterrupt is among the exceptions that led to ``e``."""

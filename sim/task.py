@@ -10,33 +10,17 @@
 * Action spec: ``BoundedArray`` (d,), ``ee_velocity``, bounds +-v_max = 2 m/s in task units. An
   action of another shape, or with a NaN, raises ``SimError``; a finite action outside the bounds
   is CLIPPED to them, component-wise (``FieldTrackingTask.clipped_actions`` counts those steps).
-* Observations (``OrderedDict``, ``OBSERVATION_KEYS``), all float64:
-
-  - ``joint_positions`` (n,), ``joint_velocities`` (n,): arm joints in Pinocchio order;
-  - ``ee_position`` (3,): the tool position in world (m, MuJoCo site), computed from the
-    observed joints (kinematics run after every step: equal to Pinocchio FK to ~1e-15 m);
-  - ``task_position`` (d,): the same point in task coordinates, x = A^T (p - o) / s;
-  - ``goal`` (d,): the goal in task coordinates (after a ``GoalShift``);
-  - ``joint_limit`` (n,): 1.0 where the joint is outside [q_min, q_max], else 0.0;
-  - ``field_velocity`` (d,), only with a ``field``: the field's velocity at ``task_position``
-    (goal-shifted like ``sim.rollout.execute``), i.e. the action that ``sim.rollout.execute`` would take.
-
+* Observations: ``OBSERVATION_KEYS`` (``FieldTrackingTask.get_observation``), plus
+  ``field_velocity`` with a ``field``.
 * Reward: 1 within 5 mm of the (shifted) goal, falling off as a Gaussian over 5 cm
   (``dm_control.utils.rewards.tolerance``).
-* Restorable state: ``physics.get_state()`` holds the MuJoCo state only. The computed-torque
-  controller also remembers the previous joint-velocity reference, and the task its control-step
-  index (push and noise schedule) and the applied push force; restoring the physics alone replays
-  differently (Panda, computed torque: 0.63 mm off within 0.9 s, 6.5 mm with a push in that
-  window). ``FieldTrackingTask.get_state`` / ``set_state`` save and restore all of it (MuJoCo's
-  full ``mjSTATE_INTEGRATION`` state plus the controller and schedule), so a replay is exact with
-  the ``dls`` IK (stateless). Not included: the Environment's own step counter (its time limit
-  counts from its last reset), the random start generator, and any state of the ``pink`` IK's QP
-  solver.
+* Restorable state: ``FieldTrackingTask.get_state`` / ``set_state`` (the physics state alone does
+  not replay a run exactly).
 
-The fast loop (``sim.rollout``) uses these same Physics and Task objects but calls
-``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly: ``Environment.step``
-(with its observation dicts, reward and wrapped-array access) measured 1.4-1.8x the lean loop's
-cost per control step (scripts/bench_loop.py).
+The fast loop (``sim.loop``) uses these same Physics and Task objects but calls
+``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly: ``Environment.step``,
+with its observation dicts, reward and wrapped-array access, costs noticeably more per control
+step (scripts/speed_loop.py measures both).
 """
 
 from __future__ import annotations
@@ -245,6 +229,17 @@ class FieldTrackingTask(control.Task):
         return self._action_spec
 
     def get_observation(self, physics: ArmPhysics) -> collections.OrderedDict:
+        """The observations (``OrderedDict``, float64):
+
+        - ``joint_positions`` (n,), ``joint_velocities`` (n,): arm joints in Pinocchio order;
+        - ``ee_position`` (3,): the tool position in world (m, MuJoCo site), computed from the
+          observed joints (``after_step`` runs the kinematics: equal to Pinocchio FK up to round-off);
+        - ``task_position`` (d,): the same point in task coordinates, x = A^T (p - o) / s;
+        - ``goal`` (d,): the goal in task coordinates (after a ``GoalShift``);
+        - ``joint_limit`` (n,): 1.0 where the joint is outside [q_min, q_max], else 0.0;
+        - ``field_velocity`` (d,), only with a ``field``: the field's velocity at ``task_position``
+          (goal-shifted), i.e. the action that ``sim.loop.execute`` would take.
+        """
         q = physics.joint_positions()
         p = physics.ee_position()
         x = self.placement.to_task(p)
@@ -278,7 +273,14 @@ class FieldTrackingTask(control.Task):
     def get_state(self, physics: ArmPhysics) -> np.ndarray:
         """Everything a replay depends on, shape (S + n + 1,): MuJoCo's ``mjSTATE_INTEGRATION``
         state (S values: time, qpos, qvel, act, warm start, ctrl, applied forces, ...), the
-        controller's previous joint-velocity reference (n,) and the control-step index."""
+        controller's previous joint-velocity reference (n,) and the control-step index.
+
+        ``physics.get_state()`` holds the MuJoCo state only: the computed-torque controller also
+        remembers its previous joint-velocity reference, and the task its control-step index (push
+        and noise schedule), so restoring the physics alone replays differently. With this state a
+        replay is exact for the ``dls`` IK (stateless). Not included: the Environment's own step
+        counter (its time limit counts from its last reset), the random start generator, and any
+        state of the ``pink`` IK's QP solver."""
         m, d = physics.model.ptr, physics.data.ptr
         sim_state = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_INTEGRATION))
         mujoco.mj_getState(m, d, sim_state, mujoco.mjtState.mjSTATE_INTEGRATION)
@@ -426,7 +428,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
     demos : str or DemoSet, optional
         A demo SPEC (``spiral``, ``lasa:Angle``, a file; see ``lfd.load_demos``) or a DemoSet.
     learner_field : VelocityField, optional
-        Adds the ``field_velocity`` observation (the action ``sim.rollout.execute`` would take) and
+        Adds the ``field_velocity`` observation (the action ``sim.loop.execute`` would take) and
         gives the goal.
     seed, start_radius : random initial states: with ``start_radius`` > 0 (task units) each
         episode starts uniformly in that ball around the start, drawn from ``seed``.
@@ -455,7 +457,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                              gains=gains, feedforward=feedforward, mj_model=physics.model.ptr,
                              start_radius=start_radius, seed=seed,
                              field=None if learner_field is None else learner_field.single_point_evaluator(),
-                             timed=is_time_varying(learner_field),
+                             timed=learner_field is not None and is_time_varying(learner_field),
                              dynamics=dynamics)
     return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
                                legacy_step=False)

@@ -3,7 +3,7 @@
 Arrays (K+1 control steps, n arm joints, d task dimensions):
 
 * ``t`` (K+1,) s; ``q`` (K+1, n) rad or m; ``qdot`` (K+1, n) rad/s or m/s, both as the control
-  loop read them from MuJoCo at each step (``sim.rollout.Rollout``);
+  loop read them from MuJoCo at each step (``sim.loop.RunTrace``);
 * ``ee`` (K+1, 3) the measured tool position, world m; ``reference`` (K+1, 3) the field's own
   rollout from the same start; ``unperturbed`` (K+1, 3) the same run without its push or hold
   (NaN when it had neither); ``deviation`` (K+1,) |ee - unperturbed| m;
@@ -34,7 +34,7 @@ def arrays(result: Any, placement: Any, robot: Any) -> dict[str, np.ndarray]:
     Parameters
     ----------
     result : sim.RunResult
-        The run; its rollout's recorded states, command and applied force are used as they are.
+        The run; its trace's recorded states, command and applied force are used as they are.
     placement : sim.Placement
         The run's placement (task velocity -> world).
     robot : robots.RobotModel
@@ -45,7 +45,7 @@ def arrays(result: Any, placement: Any, robot: Any) -> dict[str, np.ndarray]:
     dict of str to ndarray
         Name -> array, shapes as in the module docstring.
     """
-    ro = result.rollout
+    ro = result.trace
     t = np.asarray(ro.t)
     n_steps = len(t)
     window = np.array([np.nan, np.nan]) if ro.push_window_s is None else np.asarray(ro.push_window_s, dtype=np.float64)

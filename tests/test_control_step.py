@@ -1,9 +1,9 @@
-"""The fast control step (issue 15): computed torque from MuJoCo's own M(q) and bias forces (one
+"""The fast control step: computed torque from MuJoCo's own M(q) and bias forces (one
 ``mj_step`` split into ``mj_step1`` / ``mj_step2``) instead of a second inverse-dynamics pass with
 Pinocchio's RNEA, and twist + DLS + command fused into one compiled call.
 
 Both are checked against the old path, computed here side by side: the same closed-loop tool path
-to TRACK_TOL_M (measured: <= 1.6e-15 m on the Panda, spiral fields, with a push and with joint
+to TRACK_TOL_M (round-off in practice, on the Panda, spiral fields, with a push and with joint
 noise), the same torques to TORQUE_TOL, and the fused call equal to the Python path (also where
 it hands over to that path, near a joint limit).
 """
@@ -16,17 +16,17 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import sink_field
+from known_fields import sink_field
 
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import RobotModel, load_robot
 from sim.errors import SimError
+from sim.loop import execute
 from sim.perturbations import JointVelocityNoise, Push
-from sim.rollout import execute
 
-TRACK_TOL_M = 1e-9        # tool path, MuJoCo vs Pinocchio inverse dynamics (measured ~1e-15 m)
-TORQUE_TOL = 1e-9         # N m, M a + c from MuJoCo vs RNEA (measured ~7e-15)
+TRACK_TOL_M = 1e-9        # tool path, MuJoCo vs Pinocchio inverse dynamics (they agree to round-off)
+TORQUE_TOL = 1e-9         # N m, M a + c from MuJoCo vs RNEA (they agree to round-off)
 CTRL_TOL = 1e-10          # fused kernel vs the Python path, actuator command
 
 

@@ -1,6 +1,6 @@
-"""The dm_env / dm_control task (issue 12): dm_env's own conformance tests on three arms, fresh
+"""The dm_env / dm_control task: dm_env's own conformance tests on three arms, fresh
 kinematics in the observation, checked actions, random initial states, the joint-limit flag, the
-restorable state, the one-call constructor, agreement with ``sim.rollout.execute``, and gymnasium through
+restorable state, the one-call constructor, agreement with ``sim.loop.execute``, and gymnasium through
 shimmy (an optional extra; skipped when it is absent).
 
 The fields are hand-made linear sinks (no training), so the tests are fast.
@@ -15,21 +15,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import sink_field
 from dm_env import test_utils
+from known_fields import sink_field
 
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import Kinematics, RobotModel, load_robot
-from sim.rollout import execute
+from sim.loop import execute
 
 EPISODE_S = 0.1                   # 50 control steps at 500 Hz
-FK_TOL_M = 1e-9                   # issue 12: observation vs forward kinematics of the observed joints
-# sim.rollout.execute vs a plain dm_env loop: the paths differ only in the FK that feeds the field (Pinocchio
-# in execute, the MuJoCo site in the observation; they agree to ~5e-16 m) and in float rounding, which
-# this contracting closed loop does not amplify. Measured over 1 s: 4.4e-16 m (planar), 6.7e-16 m
-# (Panda), 5.6e-16 m (UR5); with the stale site of before issue 12: 0.45, 0.30, 0.30 mm. 1e-9 m leaves
-# six orders of magnitude for other CPUs and BLAS builds and is still 1e5 below the stale error.
+FK_TOL_M = 1e-9                   # observation vs forward kinematics of the observed joints
+# sim.loop.execute vs a plain dm_env loop: the paths differ only in the FK that feeds the field (Pinocchio
+# in execute, the MuJoCo site in the observation; they agree to round-off) and in float rounding, which
+# this contracting closed loop does not amplify: over 1 s they agree to round-off on all three arms, while
+# an observation from a stale site (kinematics not rerun after the step) is off by tenths of a mm. 1e-9 m
+# leaves orders of magnitude for other CPUs and BLAS builds and is still far below the stale error.
 EXECUTE_TOL_M = 1e-9
 
 
@@ -98,7 +98,7 @@ def test_ee_position_is_the_forward_kinematics_of_the_observed_joints(name: str)
         worst = max(worst, float(np.abs(o["ee_position"] - kin.ee_position()).max()))
         np.testing.assert_allclose(o["task_position"], placement.to_task(o["ee_position"]), rtol=0, atol=1e-12)
         moved = max(moved, float(np.linalg.norm(o["ee_position"] - env.task.placement.to_world(env.task.start_task))))
-    assert worst <= FK_TOL_M, worst        # measured <= 5e-16 m; stale site before the fix: 0.35-0.59 mm median
+    assert worst <= FK_TOL_M, worst        # round-off; a stale site (kinematics not rerun) is off by tenths of a mm
     assert moved > 1e-3                    # the arm did move, so a stale site would have shown
 
 
@@ -190,17 +190,17 @@ def test_task_state_restores_the_controller_too() -> None:
     task.set_state(physics, saved)
     ts_obs[0] = saved_obs
     again = run(450)
-    assert np.abs(again - first).max() <= 1e-12       # measured: 0 (bit-identical replay)
+    assert np.abs(again - first).max() <= 1e-12       # in practice a bit-identical replay
     # physics only: the controller keeps the reference of step 500 and the schedule its step index
     physics.set_state(physics_only)
     ts_obs[0] = saved_obs
     wrong = run(450)
-    assert np.abs(wrong - first).max() > 1e-4         # measured 6.5 mm (0.63 mm without the push)
+    assert np.abs(wrong - first).max() > 1e-4         # millimetres off in practice (less without the push)
     with pytest.raises(sim.SimError, match="state must have shape"):
         task.set_state(physics, saved[:-1])
 
 
-# ---------------------------------------------------------------- one call, and sim.rollout.execute
+# ---------------------------------------------------------------- one call, and sim.loop.execute
 def test_make_environment_in_one_call() -> None:
     env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
     ts = env.reset()

@@ -1,4 +1,4 @@
-"""``lfd export`` (issue 12): TorchScript, ONNX and an NPZ grid reproduce ``field(x)``, for the NODE
+"""``lfd export``: TorchScript, ONNX and an NPZ grid reproduce ``field(x)``, for the NODE
 and the contraction learner (whatever ``lfd.train`` returns), with clean errors otherwise."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from lfd.commands.export import GridField
 pytestmark = [pytest.mark.usefixtures("one_thread"),
               pytest.mark.filterwarnings(r"ignore:`torch\.jit\.load` is deprecated:DeprecationWarning")]
 
-TOL = 1e-6     # issue 12: the export reproduces field(x) to 1e-6 (user units/s)
+TOL = 1e-6     # the export reproduces field(x) to 1e-6 (user units/s)
 LEARNERS = {"node": {"iterations": 10, "hidden": (16, 16)}, "contraction": {"iterations": 5}}
 
 
@@ -62,7 +62,7 @@ def test_torchscript_reproduces_the_field(learner: str, models, tmp_path: Path, 
         with torch.no_grad():
             got = ts(torch.from_numpy(x)).numpy()
         assert got.shape == (n, field.dim)
-        assert np.abs(got - field(x)).max() <= TOL   # measured <= 3e-14
+        assert np.abs(got - field(x)).max() <= TOL   # round-off in practice
 
 
 @pytest.mark.slow
@@ -77,12 +77,12 @@ def test_onnx_reproduces_the_node_field_and_refuses_what_onnx_cannot_express(
     x = points(field)
     got = ReferenceEvaluator(str(tmp_path / "f.onnx")).run(None, {"x": x})[0]
     ref = field(x)
-    # a float64 graph run by onnx's pure-Python reference evaluator: measured 3.5e-9 here (and 4e-8
-    # relative on a LASA model), bounded like every export by 1e-6 x max(1, max |f|)
+    # a float64 graph run by onnx's pure-Python reference evaluator: less exact than round-off (its
+    # kernels sum in another order), bounded like every export by 1e-6 x max(1, max |f|)
     assert np.abs(got - ref).max() <= TOL * max(1.0, np.abs(ref).max())
     # What the exporter cannot convert ends in one line. The real contraction field fails with
-    # "no ONNX operator for aten._linalg_eigh" (measured, ~25 s); here the exporter's error is
-    # replayed instead of paying for that conversion.
+    # "no ONNX operator for aten._linalg_eigh", after a slow conversion attempt; here the exporter's
+    # error is replayed instead of paying for that conversion.
     def unconvertible(*args, **kwargs):
         raise torch.onnx.OnnxExporterError("Failed to convert the exported program to an ONNX model.\n"
                               "No ONNX function found for <OpOverload(op='aten._linalg_eigh', "
@@ -119,7 +119,7 @@ def test_npz_grid_reproduces_the_field(learner: str, n: int, models, tmp_path: P
     x = np.random.default_rng(5).uniform(lo, hi, size=(400, field.dim))
     scipy_linear = RegularGridInterpolator(tuple(grid.axes), grid.v)(x)
     assert np.abs(grid(x) - scipy_linear).max() <= 1e-12 * max(1.0, np.abs(grid.v).max())
-    # between nodes: O(h^2); measured 2e-4 (node, 2-D, n = 101) relative to max |f|
+    # between nodes: O(h^2), far below this bound at the default grid
     assert np.abs(grid(x) - field(x)).max() <= 0.02 * np.abs(field(x)).max()
     outside = hi + 10.0 * (hi - lo)                                # clamped to the box's corner
     np.testing.assert_allclose(grid(outside), grid(hi), rtol=0, atol=1e-12)

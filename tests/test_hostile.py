@@ -1,4 +1,4 @@
-"""Hostile input (issue 10): every bad input is one line on stderr and exit 2, nothing half-written.
+"""Hostile input: every bad input is one line on stderr and exit 2, nothing half-written.
 
 Property-based (hypothesis): malformed CSV, NPZ and model bytes give either a valid result or a
 typed error (an ``LfdError``) with a one-line message. Then the command-line paths: output paths
@@ -234,7 +234,7 @@ def test_nan_weights_are_refused(work: Path, capsys: pytest.CaptureFixture[str])
     code, out, err = _run(["eval", str(work / "nan.pt"), "--demos", str(work / "demos.npz")], capsys)
     assert code == 2 and out == ""
     _one_error_line(err, "nan.pt: the model's weights contain NaN or inf")
-    # certify reads it on purpose, and reports it: NOT certified, exit 1 (issue 8)
+    # certify reads it on purpose, and reports it: NOT certified, exit 1
     code, out, err = _run(["certify", str(work / "nan.pt"), "--samples", "400"], capsys)
     assert code == 1 and "NOT CERTIFIED" in out and err == ""
 
@@ -271,7 +271,7 @@ def test_warnings_are_one_line(work: Path, monkeypatch: pytest.MonkeyPatch,
 
 
 def test_help_is_plain_fast_to_import_and_lists_learners() -> None:
-    """``lfd --help`` must not import torch (it took 4 s); its text has no RST markup."""
+    """``lfd --help`` must not import torch (seconds of imports); its text has no RST markup."""
     code = ("import sys, contextlib, io\n"
             "from lfd.cli import main\n"
             "for argv in (['--help'], ['train', '--help'], ['certify', '--help'], ['--version']):\n"
@@ -322,12 +322,12 @@ def test_cache_retrains_a_corrupt_file_and_never_stores_an_interrupted_one(
 
 @pytest.fixture
 def demo_arm(monkeypatch: pytest.MonkeyPatch, tmp_path: Path):  # type: ignore[no-untyped-def]
-    monkeypatch.syspath_prepend(str(ROOT / "scripts"))
+    """The arm job's command line, ``sim.cli`` (what scripts/demo_arm.py runs), on a fresh cache."""
     monkeypatch.setenv("LFD_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)
-    import demo_arm
+    from sim import cli
 
-    return demo_arm
+    return cli
 
 
 def test_demo_arm_checks_outputs_and_seed_first(demo_arm, tmp_path: Path,  # type: ignore[no-untyped-def]
@@ -401,21 +401,84 @@ def test_video_writer_removes_its_temporary_file_on_interrupt(tmp_path: Path) ->
     assert list((tmp_path / "v").iterdir()) == []
 
 
-def test_demo_arm_rolls_back_what_a_failed_run_wrote(demo_arm, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    """A run that fails after writing its videos (e.g. metrics.json cannot be written) removes the
-    videos and the folders it created, and nothing that was there before."""
+def test_an_output_set_discards_what_a_failed_job_staged_and_keeps_what_was_there(tmp_path: Path) -> None:
+    """A job that fails after writing (e.g. metrics.json cannot be written) leaves no file of its
+    own, inside or outside the output folder, and no folder it created; the files in place stay."""
+    from sim.outputs import OutputSet
+
     (tmp_path / "keep").mkdir()
     (tmp_path / "keep" / "old.mp4").write_bytes(b"user's file")
-    outputs = demo_arm.Outputs()
     run = tmp_path / "out" / "run"
-    outputs.make_dir(run)
-    outputs.make_dir(tmp_path / "keep")
-    for name in ("node_none.mp4", "node_push.mp4"):
-        (run / name).write_bytes(b"video")
-        outputs.files.append(run / name)
-    outputs.rollback()
-    assert not (tmp_path / "out").exists()
+    outputs = OutputSet(run, overwrite=False, inputs={})
+    planned = [run / "node_none.mp4", run / "sub" / "node_push.npz", tmp_path / "new" / "v.mp4"]
+    outputs.plan(planned)
+    for path in planned:
+        outputs.staged(path).write_bytes(b"data")
+    assert not any(p.exists() for p in planned)            # nothing in place before the commit
+    outputs.discard()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep"]
     assert (tmp_path / "keep" / "old.mp4").read_bytes() == b"user's file"
+
+
+def test_an_output_folder_is_replaced_whole_or_not_at_all(tmp_path: Path) -> None:
+    """--out reuse: refused unless --overwrite; with it, a run that is interrupted leaves the old
+    run's files exactly as they were, and one that completes replaces them all (no stale file)."""
+    from lfd.errors import ConfigError, OutputError
+    from sim.outputs import OutputSet
+
+    out = tmp_path / "D"
+    first = OutputSet(out, overwrite=False, inputs={})
+    first.plan([out / "a.npz", out / "metrics.json"])
+    first.staged(out / "a.npz").write_bytes(b"first")
+    first.staged(out / "metrics.json").write_text('{"runs": []}')
+    first.commit(last=out / "metrics.json")
+    with pytest.raises(ConfigError, match="--out is not empty"):
+        OutputSet(out, overwrite=False, inputs={})
+    with pytest.raises(OutputError, match="would remove the model file"):
+        (out / "model.pt").write_bytes(b"m")
+        OutputSet(out, overwrite=True, inputs={"model file": str(out / "model.pt")})
+    (out / "model.pt").unlink()
+    second = OutputSet(out, overwrite=True, inputs={})
+    second.plan([out / "b.npz", out / "metrics.json"])
+    second.staged(out / "b.npz").write_bytes(b"second")
+    second.discard()                                            # Ctrl-C while the second run renders
+    assert sorted(p.name for p in out.iterdir()) == ["a.npz", "metrics.json"]
+    assert (out / "a.npz").read_bytes() == b"first"
+    third = OutputSet(out, overwrite=True, inputs={})
+    third.staged(out / "b.npz").write_bytes(b"third")
+    third.staged(out / "metrics.json").write_text('{"runs": [1]}')
+    third.commit(last=out / "metrics.json")
+    assert sorted(p.name for p in out.iterdir()) == ["b.npz", "metrics.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["D"]   # no staging or old folder left
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("x")
+    with pytest.raises(ConfigError, match="holds other files"):
+        OutputSet(tmp_path / "mine", overwrite=True, inputs={})
+
+
+def test_demo_arm_interrupted_while_rendering_keeps_the_previous_run_whole(
+        demo_arm, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,  # type: ignore[no-untyped-def]
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The reported case: a run into D, then a second one into D with videos, interrupted while its
+    video renders. D still holds exactly the first run's files, metrics.json and npz agreeing."""
+    import sim.experiment
+
+    demos = spiral(n_demos=2, n_samples=40, duration=1.0)
+    save_file(demos, tmp_path / "d.npz")
+    base = ["--robot", "planar", "--learner", "contraction", "--iters", "5", "--demos", str(tmp_path / "d.npz"),
+            "--perturb", "none", "--out", str(tmp_path / "D"), "--quiet"]
+    assert demo_arm.main([*base, "--no-video"]) == 0
+    before = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
+
+    def interrupted(*args, **kwargs):  # type: ignore[no-untyped-def]
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sim.experiment.Experiment, "render", interrupted)
+    monkeypatch.setattr("sim.gl.require_backend", lambda: None)
+    assert demo_arm.main([*base, "--overwrite", "--seed", "1"]) == 130
+    assert {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+    capsys.readouterr()
 
 
 @pytest.mark.parametrize(("learner", "options"), [

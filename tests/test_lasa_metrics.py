@@ -1,4 +1,4 @@
-"""The LASA report's metric definitions (issue 12): swept area by lobes, DTW per sample, the
+"""The LASA report's metric definitions: swept area by lobes, DTW per sample, the
 std-normalised closest-point distance, the 35 x 35 spurious-attractor grid, each demo on its own
 clock. ``similaritymeasures`` (a test-only dependency, in the dev extra) is the cross-check.
 """

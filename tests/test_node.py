@@ -29,9 +29,9 @@ from lfd.normalization import Normalization
 
 # A short training: 300 iterations on the default spiral, 100 samples a demo, segments 2 -> 10.
 QUICK = dict(iterations=300, samples=100, seg=10, seg_start=2, batch=128, lr=1e-2, lr_final=1e-4)
-# Measured 0.032-0.034 (seeds 0-2): rollouts from the demo starts vs the demos, RMSE / scale.
+# Rollouts from the demo starts vs the demos, RMSE / scale (about half of it for seeds 0-2).
 QUICK_RMSE = 0.06
-# Measured 1.1e-4 (seeds 0-2): the final segment-loss (10 samples), normalised units squared.
+# The final segment-loss (10 samples), normalised units squared (a third of it for seeds 0-2).
 QUICK_LOSS = 3e-4
 
 

@@ -1,4 +1,4 @@
-"""Obstacle avoidance by modulation (lfd.obstacles) and moving goals (lfd.goal), issue 14.
+"""Obstacle avoidance by modulation (lfd.obstacles) and moving goals (lfd.goal).
 
 What the modulation preserves, checked numerically from seeded starts:
 impenetrability (Gamma >= 1 along every trajectory), convergence to the goal, and no new attractor
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import linear_field
+from known_fields import linear_field
 
 import lfd
 from lfd.errors import ConfigError
@@ -333,7 +333,7 @@ def test_trained_contraction_field_avoids_an_obstacle_on_lasa_angle() -> None:
 # ---------------------------------------------------------------- lfd plot --obstacle
 @pytest.mark.slow
 def test_lfd_plot_draws_obstacles_and_rejects_bad_ones(tmp_path, capsys) -> None:
-    """END TO END (~10 s, the streamline grid): ``lfd plot --obstacle ... --goal-shift ...``."""
+    """END TO END (the streamline grid): ``lfd plot --obstacle ... --goal-shift ...``."""
     from matplotlib.image import imread
 
     from lfd.cli import main

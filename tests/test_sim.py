@@ -7,13 +7,12 @@ machinery, not the learners; tests/test_arm_regression.py runs the learned field
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from conftest import sink_field
+from known_fields import sink_field
 
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
@@ -69,9 +68,9 @@ def test_3d_field_on_the_panda_uses_the_full_position(panda):
     exp = sim.Experiment(panda, demos3, settle_s=0.5)
     assert exp.placement.dim == 3 and np.allclose(exp.placement.rotation, np.eye(3))
     r = exp.run(sink_field(demos3), "none")
-    assert np.ptp(r.rollout.ee[:, 2]) > 0.03                # it moves in height too
+    assert np.ptp(r.trace.ee[:, 2]) > 0.03                # it moves in height too
     assert r.metrics["tracking_rmse_m"] < 0.003
-    assert np.linalg.norm(r.rollout.ee[-1] - r.reference[-1]) < 0.001    # where the field's flow ends
+    assert np.linalg.norm(r.trace.ee[-1] - r.reference[-1]) < 0.001    # where the field's flow ends
     assert r.metrics["joint_limit_violations"] == 0
 
 
@@ -99,10 +98,10 @@ def test_perturbed_rollouts_repeat_exactly(planar, demos):
     exp = sim.Experiment(planar, demos, settle_s=0.0)
     field = sink_field(demos)
     perts = (sim.StartOffset(seed=1), sim.Push(start_s=0.2, duration_s=0.1, seed=2), sim.JointVelocityNoise(seed=3))
-    a = exp.rollout(field, perts)
-    b = exp.rollout(field, perts)
+    a = exp.simulate(field, perts)
+    b = exp.simulate(field, perts)
     np.testing.assert_array_equal(a.ee, b.ee)
-    c = exp.rollout(field, ())
+    c = exp.simulate(field, ())
     assert np.abs(a.ee - c.ee).max() > 1e-3
 
 
@@ -152,27 +151,27 @@ def test_environment_reset_and_step(panda, demos):
 def test_divergence_raises_simulation_error(planar, demos):
     exp = sim.Experiment(planar, demos, settle_s=0.0)
     with pytest.raises(SimulationError, match="diverged"):
-        exp.rollout(sink_field(demos), (sim.JointVelocityNoise(std_rad_s=1e12, seed=0),))
+        exp.simulate(sink_field(demos), (sim.JointVelocityNoise(std_rad_s=1e12, seed=0),))
     nan_field = sink_field(demos)
     with torch.no_grad():
         nan_field.module.A.fill_(float("nan"))
     with pytest.raises(SimulationError, match="diverged"):
-        exp.rollout(nan_field)
+        exp.simulate(nan_field)
 
 
 def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypatch):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    import demo_arm
+    import sim.pipeline
+    from sim import cli
 
     model = tmp_path / "sink.pt"
     demos = lfd.spiral(n_demos=2, n_samples=60, duration=1.0)
     sink_field(demos).save(model)
     monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
     diverging = lambda name, seed=0: (sim.JointVelocityNoise(std_rad_s=1e12),)  # noqa: E731
-    monkeypatch.setattr(demo_arm, "scenario", diverging)
+    monkeypatch.setattr(sim.pipeline, "scenario", diverging)
     monkeypatch.setattr(sim_experiment, "scenario", diverging)
     out = tmp_path / "out"
-    rc = demo_arm.main(["--robot", "planar", "--model", str(model), "--perturb", "none", "--out", str(out), "--quiet"])
+    rc = cli.main(["--robot", "planar", "--model", str(model), "--perturb", "none", "--out", str(out), "--quiet"])
     assert rc == 2
     assert not out.exists()
 
@@ -184,10 +183,9 @@ def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypa
     (["--demos", "lasa:Nope"], "unknown LASA shape"),
 ])
 def test_demo_cli_bad_input_is_one_line_exit_2(argv, message, capsys):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    import demo_arm
+    from sim import cli
 
-    assert demo_arm.main(argv + ["--quiet"]) == 2
+    assert cli.main(argv + ["--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
 
@@ -201,7 +199,7 @@ def test_headless_video_has_expected_frames_and_motion(planar, demos, tmp_path):
     path = tmp_path / "run.mp4"
     n = exp.render(result, path, width=160, height=120, fps=30.0)
     expected = int(np.floor(exp.duration_s * 30.0 + 1e-9)) + 1
-    assert n == expected == len(result.rollout.frame_t)
+    assert n == expected == len(result.trace.frame_t)
     reader = imageio_ffmpeg.read_frames(str(path))
     meta = next(reader)
     assert tuple(meta["size"]) == (160, 120)

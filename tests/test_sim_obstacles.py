@@ -80,14 +80,11 @@ def test_contacts_are_counted_where_the_tool_enters_and_clearance_elsewhere(plan
 
 @pytest.fixture
 def demo_arm_sink(tmp_path, monkeypatch):
-    """scripts/demo_arm.py's module and the flags of a quick planar run of a sink field (no training)."""
-    import sys
-    from pathlib import Path
+    """The arm job's command line (``sim.cli``, behind scripts/demo_arm.py) and the flags of a quick
+    planar run of a sink field (no training)."""
+    from known_fields import sink_field
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import demo_arm
-    from conftest import sink_field
+    from sim import cli as demo_arm
 
     model = tmp_path / "sink.pt"
     sink_field(lfd.spiral(n_demos=2, n_samples=60, duration=1.0)).save(model)
@@ -130,7 +127,7 @@ def panda_goal_runs():
     from lfd.goal import shift_goal
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from conftest import sink_field
+    from known_fields import sink_field
 
     demos = lfd.spiral()
     field = sink_field(demos)
@@ -143,27 +140,27 @@ def panda_goal_runs():
 
 def test_goal_moved_mid_run_is_reached_on_the_panda_without_a_speed_spike(panda_goal_runs) -> None:
     exp, field, moved, dx, plain, shifted = panda_goal_runs
-    ro, t = shifted.rollout, shifted.rollout.t
+    ro, t = shifted.trace, shifted.trace.t
     scale = exp.placement.scale
     new_goal = exp.placement.to_world(field.goal + dx)
     np.testing.assert_allclose(ro.goal_world, new_goal, atol=1e-12)            # scored against the moved goal
     assert shifted.metrics["final_goal_error_m"] <= 5e-3
-    assert np.linalg.norm(ro.ee[-1] - plain.rollout.goal_world) > 0.5 * np.linalg.norm(dx) * scale
+    assert np.linalg.norm(ro.ee[-1] - plain.trace.goal_world) > 0.5 * np.linalg.norm(dx) * scale
     before = t < 1.0                                                            # the run is the plain one until t = 1 s
-    assert np.max(np.linalg.norm(ro.ee[before] - plain.rollout.ee[before], axis=1)) < 1e-9
-    assert np.max(np.linalg.norm(ro.ee[t > 1.2] - plain.rollout.ee[t > 1.2], axis=1)) > 0.01
+    assert np.max(np.linalg.norm(ro.ee[before] - plain.trace.ee[before], axis=1)) < 1e-9
+    assert np.max(np.linalg.norm(ro.ee[t > 1.2] - plain.trace.ee[t > 1.2], axis=1)) > 0.01
     robot = exp.robot
     peak = np.max(np.abs(ro.qdot) / robot.v_max)
     assert peak < 1.0 and ro.joint_limit_violations == 0
     # no spike: the blended shift changes the command by no more than the plain run does per step
     jump = np.max(np.linalg.norm(np.diff(ro.command, axis=0), axis=1))
-    jump_plain = np.max(np.linalg.norm(np.diff(plain.rollout.command, axis=0), axis=1))
+    jump_plain = np.max(np.linalg.norm(np.diff(plain.trace.command, axis=0), axis=1))
     assert jump <= 2.0 * jump_plain
 
 
 def test_the_loop_feeds_a_time_varying_field_its_time(panda_goal_runs) -> None:
     exp, _, moved, _, _, shifted = panda_goal_runs
-    ro = shifted.rollout
+    ro = shifted.trace
     np.testing.assert_allclose(exp.command(moved, ro), ro.command, rtol=1e-9, atol=1e-12)
     # the reference is the time-varying field's own rollout: the robot tracks it as closely as the plain run
     err = np.linalg.norm(ro.ee - shifted.reference, axis=1)
@@ -178,11 +175,11 @@ def test_the_moving_goal_is_recorded_and_drawn_where_it_is(panda_goal_runs, tmp_
 
     exp, field, _, _, plain, shifted = panda_goal_runs
     assert plain.goal_path is None
-    path, t = shifted.goal_path, shifted.rollout.t
+    path, t = shifted.goal_path, shifted.trace.t
     assert path is not None and path.shape == (len(t), 3)
     np.testing.assert_allclose(path[t < 1.0], np.broadcast_to(exp.placement.to_world(field.goal), path[t < 1.0].shape),
                                atol=1e-12)
-    np.testing.assert_allclose(path[-1], shifted.rollout.goal_world, atol=1e-12)
+    np.testing.assert_allclose(path[-1], shifted.trace.goal_world, atol=1e-12)
 
     def goal_centroids(result, name: str) -> np.ndarray:     # (2 frames, 2): goal-coloured pixels, legend excluded
         video = tmp_path / name
@@ -240,15 +237,15 @@ def test_moving_obstacle_moves_in_the_scene_and_is_avoided_on_the_panda() -> Non
     from lfd.obstacles import avoid
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from conftest import sink_field
+    from known_fields import sink_field
 
     demos = lfd.spiral()
     field = sink_field(demos)
     crossing = field.rollout(demos.x[0, 0], np.linspace(0.0, 0.5, 51))[-1]   # on the path at t = 0.5 s
     mover = Obstacle.sphere(crossing - np.array([0.6, 0.0]), 0.12, velocity=[1.2, 0.0], margin=0.3)
     exp = sim.Experiment(load_robot("panda"), demos, obstacles=[mover])
-    safe = exp.run(avoid(field, [mover]), "none").rollout
-    bare = exp.run(field, "none").rollout
+    safe = exp.run(avoid(field, [mover]), "none").trace
+    bare = exp.run(field, "none").trace
     assert safe.mocap_pos is not None and safe.mocap_pos.shape == (len(safe.t), 1, 3)
     shift = exp.placement.scale * exp.placement.axes @ np.array([1.2, 0.0])             # m per s
     np.testing.assert_allclose(safe.mocap_pos[:, 0], safe.t[:, None] * shift[None], atol=1e-12)

@@ -1,4 +1,4 @@
-"""The robustness sweep of the arm (scripts/sweep_arm.py, issue 15): one JSON record per run,
+"""The robustness sweep of the arm (scripts/sweep_arm.py): one JSON record per run,
 resume, summary and figures, the local process pool and Ray giving the same numbers.
 
 Small on purpose: the planar arm, two tiny learned fields (trained once into a temporary model

@@ -38,7 +38,7 @@ def time_to_path(traj: np.ndarray, t: np.ndarray, path: np.ndarray, tol: float) 
 
 def test_five_starts_converge_faster_at_a_higher_rate(spiral: lfd.DemoSet,
                                                       fields: dict[str, TrackingField]) -> None:
-    """Issue 9's target: 5 starts within 10% of the extent around the true spiral's start reach
+    """The convergence target: 5 starts within 10% of the extent around the true spiral's start reach
     5% of the extent of the true path within 1 s (K = 3) and 5 s (K = 0.5), strong strictly first."""
     true = lfd.spiral(n_demos=1, start_spread=0.0, noise=0.0, n_samples=2000).x[0]
     extent = float(np.ptp(spiral.x.reshape(-1, 2), axis=0).max())
@@ -72,7 +72,7 @@ def test_rollout_ends_at_the_goal_with_the_phase_at_one(fields: dict[str, Tracki
 
 def test_imitation_rmse(spiral: lfd.DemoSet, fields: dict[str, TrackingField]) -> None:
     """From the demo starts: the start-conditioned reference (Eq. (T2), the default) beats the NODE's
-    RMSE at K = 3 (measured 0.0144 against 0.0174); the mean reference cannot go below the demos'
+    RMSE at K = 3 (reports/comparison.md); the mean reference cannot go below the demos'
     spread around their mean (its floor)."""
     r = {k: np.mean([rmse(y, x) for y, x in zip(reproduce(f, spiral), spiral.x)]) for k, f in fields.items()}
     assert r["K=3"] <= NODE_RMSE_SPIRAL
@@ -105,7 +105,7 @@ def test_start_offset_is_clamped_outside_the_demos_spread(spiral: lfd.DemoSet,
 
 def test_phase_waits_while_the_arm_is_held(fields: dict[str, TrackingField]) -> None:
     """Held at the start for 1 s the phase advances less than a quarter of what it does free
-    (0.2 of the motion; measured 0.044: the reference waits near the held arm)."""
+    (0.2 of the motion; the reference waits near the held arm)."""
     f = fields["K=3"]
     step = f.phase_point_fn()
     x, dt = f.reference(0.0)[0], 0.002
@@ -185,7 +185,7 @@ def test_arm_loop_carries_the_phase(fields: dict[str, TrackingField]) -> None:
     """sim's PhaseLoop waits while the measured tool is held, and integrate_phase (the arm's
     reference) agrees with the field's own rollout."""
     from lfd.integrate import rk4_phase as integrate_phase
-    from sim.rollout import PhaseLoop
+    from sim.loop import PhaseLoop
 
     f = fields["K=3"]
     loop = PhaseLoop(f, 0.002)

@@ -8,12 +8,11 @@ chroma) and software rendering shift pixel values slightly from machine to machi
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import sink_field
+from known_fields import sink_field
 
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
@@ -61,7 +60,7 @@ def test_video_size_frames_rate_motion_legend_and_path_width(exp, pushed, tmp_pa
     path = tmp_path / "run.mp4"
     n = exp.render(pushed, path, 320, 240, fps=10.0)
     meta, frames = read_video(path)
-    expected = int(np.floor(pushed.rollout.t[-1] * 10.0 + 1e-9)) + 1
+    expected = int(np.floor(pushed.trace.t[-1] * 10.0 + 1e-9)) + 1
     assert n == expected == len(frames)
     assert tuple(meta["size"]) == (320, 240) and meta["fps"] == pytest.approx(10.0)
     first, last = frames[0].astype(np.int16), frames[-1].astype(np.int16)
@@ -94,15 +93,12 @@ def test_push_arrow_shows_only_while_the_push_acts(exp, pushed, tmp_path):
     assert red[-1] < during / 2                      # only the small mark where it began remains
 
 
-def test_side_by_side_has_one_labelled_panel_per_run_and_is_not_slower(exp, demos, tmp_path):
-    import time
-
+def test_side_by_side_has_one_labelled_panel_per_run(exp, demos, tmp_path):
+    """Its cost against single videos is measured by scripts/speed_render.py, not asserted here."""
     push = (sim.Push(start_s=0.3, duration_s=0.2, seed=1),)
     runs = [exp.run(sink_field(demos, name, a), "push", perturbations=push)
             for name, a in (("node", 0.5), ("contraction", 1.5), ("tracking", 4.0))]
-    t0 = time.perf_counter()
     n = exp.render(runs, tmp_path / "sbs.mp4", 480, 160, fps=10.0)
-    t_side = time.perf_counter() - t0
     meta, frames = read_video(tmp_path / "sbs.mp4")
     assert tuple(meta["size"]) == (480, 160) and len(frames) == n
     for k in range(3):                               # a legend in the top left of each 160 px panel
@@ -112,11 +108,6 @@ def test_side_by_side_has_one_labelled_panel_per_run_and_is_not_slower(exp, demo
     # the panels differ (three different fields, same push)
     p = [frames[-1][:, 160 * k:160 * (k + 1)].astype(np.int16) for k in range(3)]
     assert np.abs(p[0] - p[2]).mean() > 0.5
-    t0 = time.perf_counter()
-    for k, r in enumerate(runs):
-        exp.render(r, tmp_path / f"single{k}.mp4", 160, 160, fps=10.0)
-    t_single = time.perf_counter() - t0
-    assert t_side < 1.5 * t_single + 0.5             # one context, one encoder: not slower (noisy CPU)
 
 
 def test_panel_grid_layouts():
@@ -153,7 +144,7 @@ def test_timeseries_and_plots(exp, pushed, tmp_path):
     ts = timeseries.arrays(pushed, exp.placement, exp.robot)
     timeseries.save(tmp_path / "run.npz", ts)
     z = np.load(tmp_path / "run.npz")
-    k = len(pushed.rollout.t)
+    k = len(pushed.trace.t)
     assert z["q"].shape == z["qdot"].shape == (k, exp.robot.n) and z["ee"].shape == (k, 3)
     assert z["command"].shape == (k, 2) and z["push_force"].shape == (k, 3)
     rmse = float(np.sqrt(np.mean(z["tracking_error"] ** 2)))
@@ -174,12 +165,12 @@ def test_timeseries_and_plots(exp, pushed, tmp_path):
 
 
 def test_loop_records_qdot_command_and_push_force(exp, demos):
-    """Issue 13: the control loop records qdot, the field's command and the applied push force."""
+    """The control loop records qdot, the field's command and the applied push force."""
     from sim import timeseries
 
     push = sim.Push(force_n=7.5, duration_s=0.1, start_s=0.25, direction=(1.0, 1.0, 0.0), seed=4)
     result = exp.run(sink_field(demos), "my-push", perturbations=(push,))
-    ro = result.rollout
+    ro = result.trace
     assert result.perturbations == (push,)                       # the very objects it ran with
     dt = float(ro.t[1] - ro.t[0])
     k0 = round(0.25 / dt)
@@ -199,7 +190,7 @@ def test_loop_records_qdot_command_and_push_force(exp, demos):
     assert ts["qdot"] is not None and np.array_equal(ts["qdot"], ro.qdot)
     assert np.array_equal(ts["push_force"], ro.applied_force) and np.array_equal(ts["command"], ro.command)
     assert json.loads(str(ts["perturbations"])) == json.loads(json.dumps([push.describe()]))
-    assert np.allclose(exp.run(sink_field(demos), "none").rollout.applied_force, 0.0)
+    assert np.allclose(exp.run(sink_field(demos), "none").trace.applied_force, 0.0)
 
 
 def test_loss_plot_marks_the_curriculum_stages():
@@ -219,13 +210,13 @@ def test_loss_plot_marks_the_curriculum_stages():
     assert "curriculum" in ax.get_legend().get_texts()[0].get_text()
 
 
-# ---------------------------------------------------------------- demo_arm.py
+# ---------------------------------------------------------------- the arm job (scripts/demo_arm.py)
 @pytest.fixture
-def demo_arm(monkeypatch):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    import demo_arm
+def demo_arm():
+    """The arm job's command line, ``sim.cli`` (what scripts/demo_arm.py runs)."""
+    from sim import cli
 
-    return demo_arm
+    return cli
 
 
 def test_demo_arm_writes_series_plots_and_video_matching_metrics(demo_arm, tmp_path, monkeypatch):
@@ -262,11 +253,13 @@ def test_demo_arm_writes_series_plots_and_video_matching_metrics(demo_arm, tmp_p
     assert z["qdot"].shape == z["q"].shape and np.isfinite(z["qdot"]).all()
 
 
-def test_demo_arm_writes_the_perturbations_of_the_result(demo_arm, exp, demos):
+def test_demo_arm_writes_the_perturbations_of_the_result(exp, demos):
     """metrics.json takes a run's perturbations from its result, not from the scenario's name."""
+    from sim.job_files import run_entry
+
     push = sim.Push(force_n=3.0, duration_s=0.05, start_s=0.4, seed=7)
     result = exp.run(sink_field(demos), "push", perturbations=(push,))
-    entry = demo_arm.run_entry(result)
+    entry = run_entry(result)
     assert entry["perturbations"] == [push.describe()]
     assert entry["perturbations"][0]["force_n"] == 3.0 and entry["perturbations"][0]["start_s"] == 0.4
     assert entry["perturbations"] != [p.describe() for p in sim.experiment.scenario("push")]

@@ -4,7 +4,8 @@
 - ``evaluate``: one (learner, shape, seed) cell, trained and scored (``evaluate_cell``);
 - ``dmp``: the DMP baseline from ``movement_primitives`` (``fit_dmp``);
 - ``runner``: parallel, resumable runs of cells (``Cell``, ``run_cells``);
-- ``report``: aggregates, markdown and figures (``summarize``, ``write_report``).
+- ``report``: aggregates, markdown and figures (``summarize``, ``write_report``);
+- ``comparison``: the NODE against the contraction learners on the spiral (``scripts/compare_learners.py``).
 """
 
 from lfd.bench.dmp import fit_dmp

@@ -88,7 +88,7 @@ class DMPModel:
 
     learner = "dmp"
     # Time-indexed: it reaches the goal by construction, so the benchmark skips its 35 x 35
-    # spurious-attractor grid (1225 Python-level rollouts, ~80 s a shape).
+    # spurious-attractor grid (one Python-level rollout per grid point).
     autonomous = False
 
     def __init__(self, dmp: DMP, goal: np.ndarray, duration: float, config: DMPConfig,

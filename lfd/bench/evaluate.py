@@ -19,7 +19,7 @@ cosine_error(v_i, xd_i), in mm, mm², mm/s. Per shape: the spurious-attractor fr
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any
 from typing import Protocol as TypingProtocol
 
 import numpy as np
@@ -28,10 +28,7 @@ import torch
 from lfd import integrate, metrics
 from lfd.bench import protocol as proto
 from lfd.demos import DemoSet, lasa
-from lfd.field import VelocityField
-
-if TYPE_CHECKING:
-    from lfd.learners.tracking import TrackingField
+from lfd.field import Field, PhasedField, VelocityField, is_phased
 
 METRICS: tuple[str, ...] = ("rmse", "dtw", "dtw_per_sample", "chamfer_dtwd", "chamfer_dtwd_std", "frechet",
                             "swept_area", "velocity_rmse", "cosine_error")
@@ -42,7 +39,7 @@ class Model(TypingProtocol):
     """What the benchmark asks of a trained learner (see the module docstring)."""
 
     learner: str
-    autonomous: bool   # False: time-indexed (DMP), no spurious-attractor grid (default True if absent)
+    autonomous: bool   # False: time-indexed (DMP), no spurious-attractor grid
     config: dict[str, Any]
     train_time_s: float
     history: dict[str, Any]
@@ -148,22 +145,29 @@ def fit(learner: str, demos: DemoSet, seed: int, options: dict[str, Any]) -> Mod
         return fit_dmp(demos, **options)
     from lfd.learners import train
 
-    field = train(learner, demos, seed=seed, progress=False, **options)
-    return PhaseFieldModel(field) if hasattr(field, "rollout_with_phase") else FieldModel(field)
+    field: Field = train(learner, demos, seed=seed, progress=False, **options)
+    if is_phased(field):
+        return PhaseFieldModel(field)
+    assert isinstance(field, VelocityField)
+    return FieldModel(field)
 
 
 class PhaseFieldModel(FieldModel):
-    """A field with a phase state (``lfd.learners.tracking``) as a benchmark Model: its rollouts
+    """A ``FieldKind.PHASED`` field (``lfd.learners.tracking``) as a benchmark Model: its rollouts
     integrate (x, s) jointly from s = 0 with fixed-step RK4 (the phase stops at 1, a kink adaptive
     steps dislike): reproductions at the demos' mean sample interval, rollouts on their output grid
     (K dt <= 0.05 there for K <= 3/s)."""
+
+    def __init__(self, field: PhasedField) -> None:
+        assert isinstance(field, VelocityField)
+        super().__init__(field)
+        self.phased = field
 
     def _solve(self, x0: np.ndarray, t: np.ndarray, what: str, fallback_step: float) -> np.ndarray:
         step = fallback_step if what == "reproduce" else float(t[1] - t[0])
         self.integrators[what] = f"rk4 on (x, s), step {step:.3g} s"
         with np.errstate(all="ignore"):
-            field = cast("TrackingField", self.field)   # built only for fields with rollout_with_phase
-            return field.rollout_with_phase(x0, t, method="rk4", step=step)[0]
+            return self.phased.rollout_with_phase(x0, t, method="rk4", step=step)[0]
 
 
 def score(model: Model, demos: DemoSet, dtw_step: int) -> tuple[dict[str, list[float]], np.ndarray]:
@@ -217,7 +221,7 @@ def spurious_grid(model: Model, demos: DemoSet, protocol: proto.LasaProtocol) ->
     over the convergence horizon (``proto.horizon``) does not end within ``radius_mm`` of the
     goal. None for a time-indexed model (``autonomous`` False: the DMP reaches the goal by
     construction)."""
-    if not getattr(model, "autonomous", True):
+    if not model.autonomous:
         return None
     h, n = proto.horizon(demos, protocol)
     before = model.integrators.get("rollouts")

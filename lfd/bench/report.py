@@ -313,7 +313,16 @@ def figure_grid(records: list[dict[str, Any]], learner: str, shapes: list[str],
 
 
 def run_line(run: dict[str, Any]) -> str:
-    """How this invocation ran: workers, wall time, cache use, load."""
+    """How this invocation ran: workers, wall time, cache use, load, and the cells given up."""
+    failed = run.get("failed") or []
+    lost = "" if not failed else (
+        f" {len(failed)} cell(s) are missing from the tables, given up after their worker process "
+        "died on each try: " + "; ".join(f"{f['cell']} ({f['attempts']} tries: {f['reason']})" for f in failed)
+        + ".")
+    return _run_line(run) + lost
+
+
+def _run_line(run: dict[str, Any]) -> str:
     head = f"- Run: {run['workers']} worker process(es), one torch thread each, on {run['cpus']} CPU cores; "
     tail = "Timings are inflated by whatever else ran on the machine."
     if run["computed"] == 0:
@@ -324,21 +333,27 @@ def run_line(run: dict[str, Any]) -> str:
                    f"Reading); load average {run['load_start']} at start, {run['load_end']} at end. {tail}")
 
 
+def figure_paths(path: str | Path, learners: list[str]) -> dict[str, Path]:
+    """{learner: figure path} of the report at ``path``: ``figures/<report stem>_<learner>.png``
+    beside it, so reports written into one folder (``lasa.md``, ``quick.md``) keep their own
+    figures (``figures/lasa_node.png``, ``figures/quick_node.png``)."""
+    path = Path(path)
+    return {learner: path.parent / "figures" / f"{path.stem}_{learner}.png" for learner in learners}
+
+
 def write_report(path: str | Path, records: list[dict[str, Any]], learners: list[str],
                  shapes: list[str], protocol: dict[str, Any], run: dict[str, Any],
                  arrays: Callable[[dict[str, Any]], dict[str, np.ndarray]],
                  notes: str | None = None) -> list[Path]:
-    """Write the markdown report and its figures (``figures/lasa_<learner>.png`` beside it).
-    Returns the figure paths."""
+    """Write the markdown report and its figures (``figure_paths``). Returns the figure paths."""
     path = Path(path)
     summary = summarize(records, learners)
     rows_by = {learner: per_shape(records, learner) for learner in summary}
-    figdir = path.parent / "figures"
+    paths = figure_paths(path, list(summary))
     figures = []
     for learner in summary:
-        fp = figdir / f"lasa_{learner}.png"
-        figure_grid(records, learner, shapes, arrays, fp)
-        figures.append(fp)
+        figure_grid(records, learner, shapes, arrays, paths[learner])
+        figures.append(paths[learner])
     md = _intro_lines(shapes, protocol, run) + _summary_lines(records, summary, rows_by, shapes, protocol)
     md += ["## Reading", "", reading(summary, rows_by, protocol["radius_mm"], protocol["horizon_factor"],
                                      int(run["workers"])), ""]
@@ -348,7 +363,7 @@ def write_report(path: str | Path, records: list[dict[str, Any]], learners: list
         md += [f"## Per shape: {learner}", "", shape_table(rows_by[learner], shapes, "train"), ""]
         if summary[learner]["test"] is not None:
             md += [f"Held-out demos, {learner}:", "", shape_table(rows_by[learner], shapes, "test"), ""]
-        rel = Path("figures") / f"lasa_{learner}.png"
+        rel = paths[learner].relative_to(path.parent)
         md += [f"![LASA {learner}]({rel.as_posix()})", ""]
     text = "\n".join(md)
     atomic_write(path, lambda f: f.write(text.encode()))

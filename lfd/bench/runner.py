@@ -1,30 +1,40 @@
 """Run benchmark cells in parallel local processes, resumably.
 
 A cell is one (learner, shape, seed). Each finished cell is written at once, atomically, as
-``<cache>/<learner>__<shape>__seed<seed>.json`` (the record) and ``.npz`` (the figure arrays).
-The record carries ``hash`` = stable_hash(protocol, learner, resolved config, shape, seed); a
-later run skips a cell whose JSON and NPZ exist and whose hash matches, so an interrupted run
-resumes where it stopped and a changed protocol or option recomputes only what it changes.
+``<cache>/<learner>__<shape>__seed<seed>.npz`` (the figure arrays), then ``.json`` (the record,
+which marks the cell done). The record carries ``hash`` = stable_hash(protocol, learner, resolved
+config, shape, seed), the key of its inputs; the JSON file adds ``npz_sha256`` (the sha256 of the
+NPZ file) and ``checksum`` (the sha256 of the canonical JSON of everything else in it). A later run
+takes a cell from the cache only when both checksums hold and the hash matches, so an interrupted
+run resumes where it stopped and a changed protocol or option recomputes only what it changes. A
+bad entry (unreadable, edited, truncated, its NPZ missing) is never used: it is computed again
+after one warning line naming it (``read_cached``).
 
-Executors (``EXECUTORS``):
+Executors (``EXECUTORS``; both through ``run_parallel``, which THIS process's callbacks write from):
 
 * ``local``: a ``ProcessPoolExecutor`` (forkserver context where available, else spawn) with
   one torch thread each and SIGINT ignored: Ctrl-C reaches only the parent, which stops the
-  pool and its processes; a cell cut short leaves no file.
+  pool and its processes; a cell cut short leaves no file. Each worker watches a pipe from its
+  parent and ends when the parent dies (kill -9 included). A worker that dies takes the pool with
+  it: the lost cells run again on a new pool, each up to ``MAX_ATTEMPTS`` times.
 * ``ray``: Ray tasks (one CPU, one torch thread each). Without an address Ray starts a local
   instance with ``workers`` CPUs (no dashboard); with ``address`` (``HOST:PORT``, ``ray://HOST:PORT``
   or ``auto``; default ``$RAY_ADDRESS``) it joins that cluster. A task returns the record and the
-  NPZ bytes and THIS process writes the files, so the cache needs no shared file system. Ray is
+  NPZ bytes and THIS process writes the files, so the cache needs no shared file system. A task
+  whose worker Ray reports lost is submitted again, up to ``MAX_ATTEMPTS`` times. Ray is
   imported only here (``pip install 'lfd-arm[ray]'``); ``ray.shutdown()`` runs on every exit,
-  Ctrl-C included, after cancelling the cells still running.
+  Ctrl-C and SIGTERM included (``ray.init``'s own SIGTERM handler is replaced by the caller's
+  again), after cancelling the cells still running. A local instance gets a watchdog process
+  that ends its processes when this one dies (kill -9 included).
 
 Both compute each cell with the same code and seeds; their numbers agree to rounding across
-processes (tests/test_bench.py, rtol 1e-6).
+processes (tests/test_bench.py, rtol 1e-6). A record's ``attempts`` counts the tries it took.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
 import json
 import logging
@@ -33,10 +43,14 @@ import os
 import re
 import signal
 import socket
+import subprocess
 import sys
+import threading
 import time
+import warnings
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,12 +60,15 @@ import torch
 from tqdm.auto import tqdm
 
 from lfd.bench.protocol import LasaProtocol, stable_hash
+from lfd.errors import LfdError
 from lfd.io import atomic_write, finite_or_none, write_json
 
 # cells of slower learners first, so the pool's tail is short
 LEARNER_ORDER: tuple[str, ...] = ("node", "contraction", "tracking", "dmp")
 EXECUTORS: tuple[str, ...] = ("local", "ray")
 PROBE_TIMEOUT_S = 5.0      # TCP connect to a given Ray address before ray.init
+MAX_ATTEMPTS = 3           # tries of a run whose worker process dies, before it is given up
+EXIT_ORPHANED = 129        # a pool worker's exit code when its parent has gone (128 + SIGHUP)
 _ADDRESS = re.compile(r"^(ray://)?(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9][A-Za-z0-9_.-]*):(\d{1,5})$")
 
 
@@ -104,23 +121,66 @@ class BenchResult:
         Stems (``Cell.stem``) of the cells trained and scored in this run.
     cached : list of str
         Stems of the cells read from the cache.
+    failed : list of dict
+        The cells given up (``run_parallel``), each ``{"cell": stem, "reason", "attempts"}``; they
+        have no record and no cache entry, so a later run tries them again.
     """
 
     records: list[dict[str, Any]]
     computed: list[str]
     cached: list[str]
+    failed: list[dict[str, Any]] = field(default_factory=list)
 
 
-def cached_record(cell: Cell, cache: Path) -> dict[str, Any] | None:
-    """The cell's record if its JSON and NPZ exist and its hash matches, else None."""
-    js, npz = cache / f"{cell.stem}.json", cache / f"{cell.stem}.npz"
-    if not (js.is_file() and npz.is_file()):
-        return None
+def _entry_checksum(entry: dict[str, Any]) -> str:
+    """sha256 of the canonical JSON of a cache entry without its ``checksum``."""
+    body = {k: v for k, v in entry.items() if k != "checksum"}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def read_cached(cell: Cell, cache: str | Path) -> tuple[dict[str, Any] | None, str | None]:
+    """Check the cache entry of ``cell`` (its JSON and NPZ, module docstring).
+
+    Returns
+    -------
+    (record, problem)
+        ``(record, None)`` for a good entry of these inputs; ``(None, None)`` when there is none,
+        or it holds other inputs (another ``hash``) or was written before entries carried a
+        checksum: then the cell is simply computed; ``(None, reason)`` for a bad entry (unreadable,
+        edited, truncated, its NPZ missing or not the one it names), which must be computed again.
+    """
+    js, npz = Path(cache) / f"{cell.stem}.json", Path(cache) / f"{cell.stem}.npz"
+    if not js.is_file():
+        return None, None
     try:
-        record = json.loads(js.read_text())
+        entry = json.loads(js.read_text())
     except (OSError, ValueError):
-        return None
-    return record if isinstance(record, dict) and record.get("hash") == cell.hash else None
+        return None, "unreadable JSON"
+    if not isinstance(entry, dict):
+        return None, "not a cell record"
+    if "checksum" not in entry:
+        return None, None
+    try:
+        intact = entry["checksum"] == _entry_checksum(entry)
+    except (TypeError, ValueError):
+        intact = False
+    if not intact:
+        return None, "checksum mismatch (edited or corrupt)"
+    if entry.get("hash") != cell.hash:
+        return None, None
+    try:
+        data = npz.read_bytes()
+    except OSError:
+        return None, "its NPZ is missing or unreadable"
+    if hashlib.sha256(data).hexdigest() != entry.get("npz_sha256"):
+        return None, "its NPZ does not match its checksum (truncated or corrupt)"
+    return {k: v for k, v in entry.items() if k not in ("checksum", "npz_sha256")}, None
+
+
+def cached_record(cell: Cell, cache: str | Path) -> dict[str, Any] | None:
+    """The cell's record if its cache entry is good and of these inputs (``read_cached``), else None."""
+    return read_cached(cell, cache)[0]
 
 
 def load_arrays(cache: str | Path, record: dict[str, Any]) -> dict[str, np.ndarray]:
@@ -144,10 +204,13 @@ def compute_cell(cell: Cell) -> tuple[dict[str, Any], bytes]:
 
 
 def store_cell(cell: Cell, cache: str | Path, record: dict[str, Any], npz: bytes) -> dict[str, Any]:
-    """Write a computed cell: its NPZ, then its JSON (the JSON marks it done). Returns the record."""
+    """Write a computed cell: its NPZ, then its JSON (the JSON marks it done), the JSON carrying
+    the NPZ's sha256 and its own checksum. Returns the record (without the two checksums)."""
+    entry = {**finite_or_none(record), "npz_sha256": hashlib.sha256(npz).hexdigest()}
+    entry["checksum"] = _entry_checksum(entry)
     atomic_write(Path(cache) / f"{cell.stem}.npz", lambda f: f.write(npz))
-    write_json(Path(cache) / f"{cell.stem}.json", record)
-    return record
+    write_json(Path(cache) / f"{cell.stem}.json", entry)
+    return {k: v for k, v in entry.items() if k not in ("checksum", "npz_sha256")}
 
 
 def run_cell(cell: Cell, cache: str) -> dict[str, Any]:
@@ -155,17 +218,10 @@ def run_cell(cell: Cell, cache: str) -> dict[str, Any]:
     return store_cell(cell, cache, *compute_cell(cell))
 
 
-def _init_worker(paths: tuple[str, ...] = ()) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _worker_cell(cell: Cell) -> tuple[dict[str, Any], bytes]:
+    """``compute_cell`` in a worker process (local pool or Ray), with one torch thread."""
     torch.set_num_threads(1)
-    for p in paths:                      # before any task is unpickled (a forkserver may be older)
-        if p not in sys.path:
-            sys.path.append(p)
-
-
-def _context() -> mp.context.BaseContext:
-    methods = mp.get_all_start_methods()
-    return mp.get_context("forkserver" if "forkserver" in methods else "spawn")
+    return compute_cell(cell)
 
 
 def check_executor(executor: str, address: str | None = None) -> str | None:
@@ -204,8 +260,10 @@ def run_cells(cells: list[Cell], cache: str | Path, workers: int = 1, fresh: boo
               progress: bool = True, executor: str = "local", address: str | None = None) -> BenchResult:
     """Run every cell not already in ``cache`` (all of them with ``fresh``), ``workers`` at a
     time, on ``executor`` (module docstring; ``local`` with 1 worker: in this process, with one
-    torch thread; ``ray`` with ``address``: on that cluster). Returns records in the order of
-    ``cells``."""
+    torch thread; ``ray`` with ``address``: on that cluster). A bad cache entry is computed again
+    after one ``RuntimeWarning`` naming it. A cell whose worker process dies is tried again, up to
+    ``MAX_ATTEMPTS`` times, then listed in ``BenchResult.failed`` and left out of the records and
+    the cache. Returns records in the order of ``cells``."""
     address = check_executor(executor, address)
     cache = Path(cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -213,7 +271,10 @@ def run_cells(cells: list[Cell], cache: str | Path, workers: int = 1, fresh: boo
     cached: list[str] = []
     todo: list[Cell] = []
     for c in cells:
-        rec = None if fresh else cached_record(c, cache)
+        rec, problem = (None, None) if fresh else read_cached(c, cache)
+        if problem:
+            warnings.warn(f"bench cache: {cache / c.stem}.json: {problem}; computing the cell again",
+                          RuntimeWarning, stacklevel=2)
         if rec is None:
             todo.append(c)
         else:
@@ -221,51 +282,92 @@ def run_cells(cells: list[Cell], cache: str | Path, workers: int = 1, fresh: boo
             cached.append(c.stem)
     rank = {name: i for i, name in enumerate(LEARNER_ORDER)}
     todo.sort(key=lambda c: rank.get(c.learner, len(rank)))
+    failed: list[dict[str, Any]] = []
     bar = tqdm(total=len(cells), initial=len(cached), desc="lasa", unit="cell", disable=not progress)
+
+    def finished(i: int, result: tuple[dict[str, Any], bytes], attempts: int) -> None:
+        c = todo[i]
+        record, npz = result
+        done[c.stem] = store_cell(c, cache, {**record, "attempts": attempts}, npz)
+        bar.set_postfix_str(c.stem)
+        bar.update()
+
+    def lost(i: int, failure: Failure) -> None:
+        failed.append({"cell": todo[i].stem, "reason": failure.reason, "attempts": failure.attempts})
+        bar.update()
+
     try:
-        if executor == "ray":
-            if todo:
-                _run_ray(todo, cache, workers, address, done, bar)
-        elif workers <= 1:
-            threads = torch.get_num_threads()
-            torch.set_num_threads(1)
-            try:
-                for c in todo:
-                    bar.set_postfix_str(c.stem)
-                    done[c.stem] = run_cell(c, str(cache))
-                    bar.update()
-            finally:
-                torch.set_num_threads(threads)
-        else:
-            _run_pool(todo, cache, workers, done, bar)
+        if todo:
+            run_parallel(_worker_cell, todo, workers, executor, address, finished, on_failed=lost)
     finally:
         bar.close()
-    return BenchResult([done[c.stem] for c in cells], [c.stem for c in todo], cached)
+    return BenchResult([done[c.stem] for c in cells if c.stem in done], [c.stem for c in todo], cached,
+                       sorted(failed, key=lambda f: f["cell"]))
 
 
-def _run_pool(todo: list[Cell], cache: Path, workers: int, done: dict[str, dict[str, Any]],
-              bar: Any) -> None:
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_context(), initializer=_init_worker)
-    futures: dict[Future, Cell] = {pool.submit(run_cell, c, str(cache)): c for c in todo}
-    try:
-        pending = set(futures)
-        while pending:
-            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                c = futures[fut]
-                done[c.stem] = fut.result()
-                bar.set_postfix_str(c.stem)
-                bar.update()
-    except BaseException:
-        _kill_pool(pool)
-        raise
-    pool.shutdown(wait=True)
+# ---------------------------------------------------------------- parallel runs
+_STARTED: Any = None   # in a pool worker: the shared array of the pid that runs each item
 
 
-def _ray_cell(cell: Cell) -> tuple[dict[str, Any], bytes]:
-    """``compute_cell`` in a Ray worker, with one torch thread."""
+def _init_worker(paths: tuple[str, ...], alive: Any, started: Any) -> None:
+    """Set up a pool worker: SIGINT ignored (the parent stops the pool), one torch thread, the
+    import ``paths`` (before any task is unpickled: a forkserver may be older than them), the
+    shared ``started`` array, warnings on one line, and a thread that ends the process when the
+    parent dies."""
+    global _STARTED
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     torch.set_num_threads(1)
-    return compute_cell(cell)
+    for p in paths:
+        if p not in sys.path:
+            sys.path.append(p)
+    _STARTED = started
+    warnings.showwarning = _one_line_warning
+    threading.Thread(target=_exit_with_parent, args=(alive,), name="lfd-parent-watch", daemon=True).start()
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                      file: Any = None, line: str | None = None) -> None:
+    """A pool worker's warning as one line on stderr, ``warning: <message>`` (no source line)."""
+    text = str(message).strip()
+    try:
+        print(f"warning: {text.splitlines()[0] if text else category.__name__}", file=sys.stderr)
+    except (OSError, ValueError):
+        pass
+
+
+def _exit_with_parent(alive: Any) -> None:
+    """Block on the read end of a pipe whose only write end the parent holds: its end of file
+    means the parent has gone (kill -9 included), so this worker ends at once."""
+    try:
+        alive.recv_bytes()
+    except (EOFError, OSError):
+        pass
+    os._exit(EXIT_ORPHANED)
+
+
+def _call(fn: Callable[[Any], Any], index: int, item: Any) -> Any:
+    """``fn(item)`` in a pool worker, first marking item ``index`` as started by this process."""
+    if _STARTED is not None:
+        _STARTED[index] = os.getpid()
+    return fn(item)
+
+
+def _context() -> mp.context.BaseContext:
+    methods = mp.get_all_start_methods()
+    return mp.get_context("forkserver" if "forkserver" in methods else "spawn")
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A run given up after its worker process died on each of ``attempts`` tries; ``reason``
+    says how the last one died."""
+
+    reason: str
+    attempts: int
+
+
+class WorkerError(LfdError):
+    """Runs lost for good: their worker processes died ``MAX_ATTEMPTS`` times."""
 
 
 def start_ray(workers: int, address: str | None, paths: tuple[str, ...] = ()) -> Any:
@@ -283,6 +385,7 @@ def start_ray(workers: int, address: str | None, paths: tuple[str, ...] = ()) ->
     path = os.pathsep.join(p for p in (root, *paths, os.environ.get("PYTHONPATH", "")) if p)
     runtime_env = {"env_vars": {"PYTHONPATH": path, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}}
     kwargs: dict[str, Any] = dict(runtime_env=runtime_env, log_to_driver=False, logging_level=logging.ERROR)
+    sigterm = signal.getsignal(signal.SIGTERM)
     try:
         if address:
             ray.init(address=address, **kwargs)
@@ -291,81 +394,250 @@ def start_ray(workers: int, address: str | None, paths: tuple[str, ...] = ()) ->
     except KeyboardInterrupt:
         ray.shutdown()
         raise
+    except SystemExit as e:   # SIGTERM during ray.init, through the handler it installs
+        ray.shutdown()
+        if e.code == signal.SIGTERM and sigterm not in (None, signal.SIG_DFL, signal.SIG_IGN):
+            raise KeyboardInterrupt from None
+        raise
     except Exception as e:  # noqa: BLE001  (ConnectionError, RuntimeError, ValueError, ...)
         ray.shutdown()
         where = f"the Ray cluster at {address}" if address else "a local Ray instance"
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise ConfigError(f"cannot start or join {where}: {first}") from None
+    finally:   # ray.init makes SIGTERM exit with code 15; keep the caller's handler (Ctrl-C, exit 130)
+        if sigterm is not None and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, sigterm)
     return ray
 
 
 def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, executor: str = "local",
-                 address: str | None = None, on_done: Callable[[int, Any], None] | None = None,
-                 paths: tuple[str, ...] = ()) -> None:
-    """Call the module-level function ``fn`` on every item, ``workers`` at a time, on ``executor``
-    (module docstring; ``local`` with 1 worker: in this process), and ``on_done(index, result)``
-    in THIS process as each finishes, in any order. ``paths``: directories the workers need on
-    their import path (Ray). Ctrl-C or an exception stops the workers (local: terminated; Ray:
-    tasks cancelled, then ``ray.shutdown()``) and propagates."""
-    done = on_done or (lambda i, r: None)
+                 address: str | None = None, on_done: Callable[[int, Any, int], None] | None = None,
+                 paths: tuple[str, ...] = (), on_failed: Callable[[int, Failure], None] | None = None,
+                 max_attempts: int = MAX_ATTEMPTS) -> None:
+    """Call the module-level function ``fn`` on every item, ``workers`` at a time, on ``executor``.
+
+    Parameters
+    ----------
+    fn : callable
+        A module-level function (workers import it by name) of one item.
+    items : list
+        The items.
+    workers : int
+        Parallel processes; ``local`` with 1 worker runs in this process, with one torch thread.
+    executor : str
+        ``local`` (a process pool) or ``ray`` (module docstring).
+    address : str, optional
+        The Ray cluster to join (``ray`` only).
+    on_done : callable, optional
+        ``on_done(index, result, attempts)``, called in THIS process as each item finishes, in any
+        order; ``attempts`` counts the tries it took (1 unless a worker died under it).
+    paths : tuple of str
+        Directories the workers need on their import path.
+    on_failed : callable, optional
+        ``on_failed(index, failure)`` for an item given up (``Failure``): a worker process died
+        under it ``max_attempts`` times. Without it, such items end the call with a ``WorkerError``
+        once every other item is done.
+    max_attempts : int
+        Tries of an item whose worker process dies (kill -9, out of memory, a crash in native
+        code). Local pool: the pool is replaced and the lost items submitted again; an item that
+        was running beside the one that died is tried again at no cost to its count when the dead
+        worker can be told apart (it did not die of the pool's own SIGTERM). Ray: the task is
+        submitted again when Ray reports its worker lost.
+
+    Notes
+    -----
+    Ctrl-C or an exception (of ``fn`` in a worker, or of a callback) stops the workers (local:
+    terminated; Ray: tasks cancelled, then ``ray.shutdown()``) and propagates. Pool workers end
+    on their own when this process dies, kill -9 included.
+    """
+    done = on_done or (lambda i, r, n: None)
+    lost: list[tuple[int, Failure]] = []
+    failed = on_failed or (lambda i, f: lost.append((i, f)))
     if executor == "ray":
-        ray = start_ray(workers, address, paths)
-        try:
-            remote = ray.remote(num_cpus=1, max_retries=0)(fn)
-            refs = {remote.remote(item): i for i, item in enumerate(items)}
-            pending = list(refs)
-            try:
-                while pending:
-                    ready, pending = ray.wait(pending, num_returns=1)
-                    for ref in ready:
-                        done(refs[ref], ray.get(ref))
-            except BaseException:
-                for ref in pending:
-                    ray.cancel(ref, force=True)
-                raise
-        finally:
-            ray.shutdown()
-        return
-    if workers <= 1:
+        _run_ray(fn, items, workers, address, paths, done, failed, max_attempts)
+    elif workers <= 1:
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
             for i, item in enumerate(items):
-                done(i, fn(item))
+                done(i, fn(item), 1)
         finally:
             torch.set_num_threads(threads)
-        return
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=_context(), initializer=_init_worker,
-                               initargs=(tuple(paths),))
-    futures: dict[Future, int] = {pool.submit(fn, item): i for i, item in enumerate(items)}
+    else:
+        _run_local(fn, items, workers, paths, done, failed, max_attempts)
+    if lost:
+        raise WorkerError(f"{len(lost)} run(s) lost: a worker process died under each of them "
+                          f"{max_attempts} times ({lost[0][1].reason})")
+
+
+def _death(exitcode: int | None) -> str:
+    """How a worker process ended, from its exit code."""
+    if exitcode is None:
+        return "the worker process died"
+    if exitcode < 0:
+        try:
+            return f"the worker process was killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"the worker process was killed by signal {-exitcode}"
+    return f"the worker process exited with code {exitcode}"
+
+
+def _run_local(fn: Callable[[Any], Any], items: list[Any], workers: int, paths: tuple[str, ...],
+               done: Callable[[int, Any, int], None], failed: Callable[[int, Failure], None],
+               max_attempts: int) -> None:
+    """``run_parallel`` on local process pools: a new pool after each worker death."""
+    ctx = _context()
+    started = ctx.RawArray("q", max(len(items), 1))   # item -> pid of the worker that took it
+    alive_r, alive_w = ctx.Pipe(duplex=False)          # alive_w stays here: its close ends the workers
+    deaths = [0] * len(items)
+    queue = list(range(len(items)))
     try:
-        pending_f = set(futures)
-        while pending_f:
-            finished, pending_f = wait(pending_f, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                done(futures[fut], fut.result())
+        while queue:
+            pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
+                                       initializer=_init_worker, initargs=(tuple(paths), alive_r, started))
+            procs: dict[int, Any] = {}
+            futures: dict[Future, int] = {}
+            broken: list[int] = []
+            try:
+                for i in queue:
+                    started[i] = 0
+                    futures[pool.submit(_call, fn, i, items[i])] = i
+                pending = set(futures)
+                while pending:
+                    procs.update(getattr(pool, "_processes", None) or {})   # the executor has no public list
+                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in finished:
+                        i = futures[fut]
+                        if isinstance(fut.exception(), BrokenProcessPool):
+                            broken.append(i)
+                        else:
+                            done(i, fut.result(), deaths[i] + 1)
+            except BaseException:
+                _kill_pool(pool)
+                raise
+            pool.shutdown(wait=True)
+            queue = []
+            if not broken:
+                continue
+            ran = [i for i in broken if started[i]]
+            # the pool SIGTERMs its other workers when one dies: the dead one is any other end
+            culprits = [i for i in ran if getattr(procs.get(started[i]), "exitcode", None) != -signal.SIGTERM]
+            for i in sorted(broken):
+                if i in (culprits or ran or broken):
+                    deaths[i] += 1
+                    if deaths[i] >= max_attempts:
+                        code = getattr(procs.get(started[i]), "exitcode", None)
+                        failed(i, Failure(_death(code), deaths[i]))
+                        continue
+                queue.append(i)
+    finally:
+        alive_w.close()
+        alive_r.close()
+
+
+def _run_ray(fn: Callable[[Any], Any], items: list[Any], workers: int, address: str | None,
+             paths: tuple[str, ...], done: Callable[[int, Any, int], None],
+             failed: Callable[[int, Failure], None], max_attempts: int) -> None:
+    """``run_parallel`` on Ray: a task whose worker is lost is submitted again."""
+    reaper = None if address else _start_reaper()
+    try:
+        ray = start_ray(workers, address, paths)
     except BaseException:
-        _kill_pool(pool)
+        _stop_reaper(reaper)
         raise
-    pool.shutdown(wait=True)
+    names = ("WorkerCrashedError", "OutOfMemoryError", "NodeDiedError", "LocalRayletDiedError")
+    lost_worker = tuple(getattr(ray.exceptions, n) for n in names if hasattr(ray.exceptions, n))
+    try:
+        remote = ray.remote(num_cpus=1, max_retries=0)(fn)
+        deaths = [0] * len(items)
+        refs = {remote.remote(item): i for i, item in enumerate(items)}
+        pending = list(refs)
+        try:
+            while pending:
+                ready, pending = ray.wait(pending, num_returns=1)
+                for ref in ready:
+                    i = refs.pop(ref)
+                    try:
+                        result = ray.get(ref)
+                    except lost_worker as e:
+                        deaths[i] += 1
+                        if deaths[i] >= max_attempts:
+                            text = str(e).strip().splitlines()
+                            failed(i, Failure(f"{type(e).__name__}: {text[0] if text else 'worker lost'}"[:200],
+                                              deaths[i]))
+                        else:
+                            again = remote.remote(items[i])
+                            refs[again] = i
+                            pending.append(again)
+                        continue
+                    done(i, result, deaths[i] + 1)
+        except BaseException:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
+    finally:
+        ray.shutdown()
+        _stop_reaper(reaper)
 
 
-def _run_ray(todo: list[Cell], cache: Path, workers: int, address: str | None,
-             done: dict[str, dict[str, Any]], bar: Any) -> None:
-    def finished(i: int, result: tuple[dict[str, Any], bytes]) -> None:
-        c = todo[i]
-        done[c.stem] = store_cell(c, cache, *result)
-        bar.set_postfix_str(c.stem)
-        bar.update()
+# Run by ``_start_reaper`` as ``python -c``: record the descendants of the process argv[1] every
+# half second until its stdin ends (that process closed it, or died), then end those still running.
+_REAPER = """
+import signal, sys, threading, psutil
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+parent, me, seen, gone = psutil.Process(int(sys.argv[1])), psutil.Process(), {}, threading.Event()
+threading.Thread(target=lambda: (sys.stdin.buffer.read(), gone.set()), daemon=True).start()
+while not gone.wait(0.5):
+    try:
+        seen.update({c.pid: c for c in parent.children(recursive=True) if c.pid != me.pid})
+    except psutil.Error:
+        pass
+left = [c for c in seen.values() if c.is_running()]
+for c in left:
+    try:
+        c.terminate()
+    except psutil.Error:
+        pass
+for c in psutil.wait_procs(left, timeout=3)[1]:
+    try:
+        c.kill()
+    except psutil.Error:
+        pass
+"""
 
-    run_parallel(_ray_cell, todo, workers, "ray", address, finished)
+
+def _start_reaper() -> subprocess.Popen[bytes] | None:
+    """A watchdog process for a local Ray instance (its raylet, GCS and agents are this process's
+    descendants): when this process ends, kill -9 included, it ends the ones still running (Ray's
+    agents otherwise wait a minute on the dead GCS first). None without psutil."""
+    try:
+        import psutil  # noqa: F401  (Ray's own dependency)
+    except ImportError:
+        return None
+    return subprocess.Popen([sys.executable, "-c", _REAPER, str(os.getpid())], stdin=subprocess.PIPE,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def _stop_reaper(reaper: subprocess.Popen[bytes] | None) -> None:
+    """Close the reaper's stdin (it ends what ``ray.shutdown`` left) and wait for it."""
+    if reaper is None:
+        return
+    if reaper.stdin is not None:
+        reaper.stdin.close()
+    try:
+        reaper.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        reaper.kill()
 
 
 def _kill_pool(pool: ProcessPoolExecutor) -> None:
     """Stop a process pool now (Ctrl-C, an error): cancel what is queued, terminate the workers."""
-    procs = list(getattr(pool, "_processes", {}).values())  # the executor has no public kill
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # the executor has no public kill
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         p.terminate()
     for p in procs:
         p.join(timeout=5)
+    manager = getattr(pool, "_executor_manager_thread", None)
+    if manager is not None:   # it closes the pool's queues (and their semaphores) once it sees the workers gone
+        manager.join(timeout=5)

@@ -40,18 +40,15 @@ def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False) -
     return field, demos
 
 
-MAX_SEED = 2**63 - 1  # torch.manual_seed and numpy's generators take any seed in [0, 2^63)
-
-
 def seed(text: str) -> int:
-    """argparse type of ``--seed``: an integer in [0, 2^63 - 1]."""
+    """argparse type of ``--seed``: an integer in [0, ``lfd.learners.MAX_SEED``] = [0, 2^63 - 1]."""
     import argparse
 
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got '{text[:40]}'") from None
-    if not 0 <= value <= MAX_SEED:
+    if not 0 <= value <= source_constant("lfd.learners", "MAX_SEED"):  # read without importing torch
         raise argparse.ArgumentTypeError(f"must be between 0 and 2^63 - 1, got {text[:40]}")
     return value
 

@@ -11,6 +11,7 @@ import json
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +55,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="a learner option, e.g. contraction.rate=1.0 (VALUE is JSON, else a string)")
     q.add_argument("--json", required=True, metavar="PATH", help="write all results here")
     q.add_argument("--report", required=True, metavar="PATH",
-                   help="write the markdown report here (figures go to figures/ beside it)")
+                   help="write the markdown report here (its figures: figures/<report name>_<learner>.png beside it)")
     q.add_argument("--cache", metavar="DIR",
                    help="finished cells (default: .cache/<json stem>/ beside --json)")
     q.add_argument("--fresh", action="store_true", help="recompute every cell, ignoring the cache")
@@ -159,11 +160,14 @@ def run(args: argparse.Namespace) -> int:
                        progress=sys.stderr.isatty(),  # a bar only on a terminal
                        executor=args.executor, address=address)
     wall = time.perf_counter() - t0
+    for f in result.failed:   # shown by lfd.cli as one line "lfd: warning: ..."
+        warnings.warn(f"cell {f['cell']} given up after {f['attempts']} tries ({f['reason']}); it is "
+                      "not in the report or the cache: run again to retry it", RuntimeWarning, stacklevel=1)
     run_info = {
         "command": _command(args), "seeds": seeds, "workers": args.workers, "executor": args.executor,
         "cpus": os.cpu_count(),
         "wall_s": wall, "computed": len(result.computed), "cached": len(result.cached),
-        "load_start": load_start, "load_end": _load(), "cache": str(cache),
+        "load_start": load_start, "load_end": _load(), "cache": str(cache), "failed": result.failed,
     }
     figures = write_report(args.report, result.records, learners, shapes, protocol.to_dict(), run_info,
                            lambda r: load_arrays(cache, r), notes)

@@ -11,17 +11,10 @@ Formats (``--format``), each a function of user-unit positions x -> dx/dt in use
   the NODE exports; the contraction field's flow uses an eigen-decomposition (``aten._linalg_eigh``)
   and a linear solve that the exporter cannot convert, which ends in a clear error (use
   ``torchscript`` or ``npz-grid`` for it).
-* ``npz-grid``: the field sampled on a regular grid, for lookup without any ML runtime. Arrays:
-  ``axes`` (d, n) the grid coordinates per axis (ascending), ``v`` (n, ..., n, d) with
-  v[i_1, ..., i_d] = f(axes[0, i_1], ..., axes[d-1, i_d]) (``indexing="ij"``), ``goal`` (d,),
-  ``learner``, ``interpolation`` ("multilinear") and ``format`` ("lfd-npz-grid-1"). Between
-  nodes, interpolate multilinearly (bilinear in 2-D, trilinear in 3-D): with x in the cell
-  [a_k, a_k + h_k] per axis and t_k = (x_k - a_k) / h_k,
-  f(x) ~ sum over the 2^d corners c of prod_k (t_k if c_k = 1 else 1 - t_k) v[corner c];
-  outside the box, clamp x to it first (the grid says nothing there). ``GridField`` does exactly
-  this; it equals ``scipy.interpolate.RegularGridInterpolator(method="linear")`` inside the box.
-  The default box is the training demos' box (``field.demo_box``) grown by 50%; the error
-  between nodes is O(h^2) (measured in tests/test_export.py).
+* ``npz-grid``: the field sampled on a regular grid, for lookup without any ML runtime: arrays
+  ``axes`` (d, n), ``v`` (n, ..., n, d) (``indexing="ij"``), ``goal`` (d,), ``learner``,
+  ``interpolation`` ("multilinear") and ``format`` ("lfd-npz-grid-1"); ``GridField`` says how to
+  interpolate it. The default box is the training demos' box (``field.demo_box``) grown by 50%.
 
 Every export is checked before it is written: the exported function (for ``npz-grid``, the grid
 at its nodes) must reproduce ``field(x)`` to ``EXPORT_TOL`` x max(1, max |f|) at ``CHECK_POINTS``
@@ -263,10 +256,17 @@ def export_grid(field: VelocityField, path: str, n: int | None = None, lo: np.nd
 
 
 class GridField:
-    """Multilinear interpolation of an ``npz-grid`` export (module docstring).
+    """Multilinear interpolation of an ``npz-grid`` export (bilinear in 2-D, trilinear in 3-D).
 
-    axes : array, shape (d, n), ascending per axis; v : array, shape (n,)*d + (d,).
-    ``GridField.load(path)`` reads the file; calling it maps x, shape (..., d), to shape (..., d).
+    axes : array, shape (d, n), the grid coordinates per axis, ascending; v : array, shape
+    (n,)*d + (d,), v[i_1, ..., i_d] = f(axes[0, i_1], ..., axes[d-1, i_d]). With x in the cell
+    [a_k, a_k + h_k] per axis and t_k = (x_k - a_k) / h_k,
+
+        f(x) ~ sum over the 2^d corners c of prod_k (t_k if c_k = 1 else 1 - t_k) v[corner c],
+
+    x clamped to the box first (the grid says nothing outside it); inside the box this equals
+    ``scipy.interpolate.RegularGridInterpolator(method="linear")``, with an O(h^2) error between
+    nodes. ``GridField.load(path)`` reads the file; calling it maps x, shape (..., d), to (..., d).
     """
 
     def __init__(self, axes: np.ndarray, v: np.ndarray) -> None:

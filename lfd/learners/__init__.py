@@ -38,8 +38,9 @@ def normalize_demos(demos: DemoSet, norm: Normalization) -> DemoSet:
     return DemoSet(demos.t, norm.to_norm(demos.x), name=demos.name)
 
 
-MAX_SEED = 2**63 - 1
-MAX_PARAMETERS = 20_000_000  # ~0.6 GB with Adam's state in float64; far beyond any demo's needs
+MAX_SEED = 9_223_372_036_854_775_807  # 2^63 - 1, a literal (``lfd.commands.seed`` reads it unimported);
+# torch.manual_seed and numpy's generators take any seed in [0, 2^63)
+MAX_PARAMETERS = 20_000_000  # x 8 bytes x 4 (weights, gradients, Adam's moments; float64): beyond any demo's needs
 
 
 def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,

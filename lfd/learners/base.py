@@ -39,8 +39,8 @@ class Learner(ABC):
         """The number of parameters ``build(dim, config)`` would allocate, or None if unknown.
 
         Learners override this with arithmetic on the config. This fallback builds the module on
-        torch's meta device (nothing is allocated), whose first use imports about 800 modules
-        (~2 s); it returns None for a build that cannot run there (one that needs real data).
+        torch's meta device (nothing is allocated, but its first use imports many modules and is
+        slow); it returns None for a build that cannot run there (one that needs real data).
         """
         try:
             with torch.device("meta"):

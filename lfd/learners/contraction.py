@@ -1,83 +1,22 @@
-"""Contracting velocity fields by construction, with analytic bounds on all of R^d.
+"""Contraction learner: velocity fields that contract by construction, with analytic bounds on all of R^d.
 
-The learned f is the model f_L of the paper's system identification, Eq. (9), fitted to the demos
-(the residual f_true - f_L is not modelled). A field dx/dt = f(x) (the paper's Eq. (15)), whose
-virtual displacements obey d(dx)/dt = J_f dx (its Eq. (16)), contracts with rate lambda > 0 in a
-metric M(x), a I <= M(x) <= b I, when
+In normalised coordinates (goal at the origin) the field is a learned diffeomorphism phi
+(``lfd.learners.flows``) of a linear contracting system,
 
-    Eq. (C1): J_f' M + M J_f + dM/dt <= -2 lambda M   for all x,   dM/dt = sum_k (dM/dx_k) f_k,
-
-the paper's Eq. (17) written with the metric's time derivative, and then, the paper's Eq. (18) with
-the metric's constant,
-
-    |dx(t)| <= sqrt(b / a) |dx(0)| exp(-lambda t)
-
-for any two trajectories (the geodesic distance in M shrinks like e^(-lambda t), and sqrt(a)|dx|
-<= that distance <= sqrt(b)|dx|). This learner never has to check Eq. (C1): it holds for every x
-by construction. With a learned diffeomorphism phi (``lfd.learners.flows``, an invertible ResNet
-with analytic bounds s_lo <= sigma(J_phi) <= s_hi on all of R^d) and a latent linear system
-
-    Eq. (C2): dy/dt = A (y - y*),  y* = phi(0),  A = -lambda I + S - P,
-              S = W - W' (skew-symmetric), P = L L' (L lower-triangular; PSD extra damping),
-
-the field in normalised coordinates (goal at the origin) is
-
+    Eq. (C2): dy/dt = A (y - y*),  y* = phi(0),  A = -lambda I + S - P  (S skew, P = L L' PSD),
     Eq. (C3): f(x) = J_phi(x)^-1 A (phi(x) - y*),
 
-so y = phi(x) obeys Eq. (C2) exactly, a displacement dx maps to dy = J_phi dx with d/dt dy = A dy,
-and in the metric M(x) = J_phi(x)' J_phi(x)
+so it satisfies the paper's Eq. (17) in the form Eq. (C1), J_f' M + M J_f + dM/dt <= -2 lambda M,
+at every x, in the metric M(x) = J_phi(x)' J_phi(x). The flow bounds that metric, a I <= M <= b I
+with b/a <= KAPPA (``max_condition``, Eq. (F4)), so any two trajectories obey the paper's Eq. (18)
+with the overshoot constant, |dx(t)| <= sqrt(b/a) |dx(0)| e^(-lambda t). Closed-form trajectories:
+Eq. (C4); an analytic global Lipschitz bound: Eq. (C6) (``lipschitz_bound``).
 
-    J_f' M + M J_f + dM/dt = J_phi' (A + A') J_phi <= -2 lambda J_phi' J_phi = -2 lambda M,
-
-because sym(A) = -lambda I - P <= -lambda I. The metric bounds are a = s_lo^2, b = s_hi^2
-(Eq. (F4)), so the overshoot constant is sqrt(b/a) = s_hi / s_lo <= sqrt(KAPPA), the user's
-``max_condition``. (The paper's Eq. (17) writes the rate of the squared length dx' M dx as
-lambda_max, i.e. 2 lambda here; its Eq. (18) omits the constant sqrt(b/a), exact for M = I only.)
-The trajectory from x0, the paper's forward ODESolve, Eq. (5), has the closed form
-
-    Eq. (C4): x(t) = phi^-1(y* + exp(A t) (phi(x0) - y*)).
-
-**Stiffness.** The field is globally Lipschitz (``lipschitz_bound``): with u = phi(x) - y*,
-J_f = J_phi^-1 A J_phi - J_phi^-1 (D J_phi) J_phi^-1 A u, |u| <= s_hi |x| and |D J_phi| bounded by
-the curvature bound Eq. (F5) (which decays like a Gaussian away from the window),
-
-    Eq. (C6): Lip(f) <= |A| s_hi / s_lo + |A| (s_hi / s_lo^2) sum_k P_k sup_r K_k(r) (r + |c_k| + D_k),
-
-with K_k the curvature bound of layer k at distance r from its centre c_k (Eq. (F5)),
-P_k = prod_{j>k} sigma_max,j prod_{j<k} sigma_max,j^2 and D_k the drift of the layers before it
-(|x| <= r + |c_k| + D_k); each 1-D sup is taken on a grid with interval-wise upper bounds
-(``lipschitz_bound``).
-
-**Training.** The speed along a trajectory is bounded too: the time shift dx = f(x(t)) dt is a
-virtual displacement, so |f(x(t))| <= sqrt(b/a) e^(-lambda t) |f(x(0))|. A demo that starts from
-rest and speeds up (every LASA demo does) therefore cannot be followed in time, only along its
-path, and a loss that matches the demos' speeds and timing pulls the path away from them
-(30 LASA shapes at KAPPA = 100: mean DTW 1146 with such a loss). The loss matches the direction
-of the field and the demos' paths, and their speed only weakly. In normalised units,
-
-    Eq. (C5): L = mean_i w_i |f(x_i)/|f(x_i)| - xd_i/|xd_i||^2
-                  + mu mean_i w_i (log |f(x_i)| - log |xd_i|)^2
-                  + w_x (Q + E + R) / mean |phi(x_demo) - y*|^2,
-
-with w_i = |xd_i| / rms |xd| (a direction is only defined where the demo moves), mu the
-``speed_weight`` and, per demo n, its latent rollout y_n(t) = y* + exp(A t)(phi(x_demo,n(0)) - y*)
-(where Eq. (C4) is linear; distances there are within [s_lo, s_hi] of distances in x) at
-``path_samples`` times tau_j evenly over [0, T_n] and its demo's latent points
-z_k = phi(x_demo,n(t_k)) at ``traj_points`` samples:
-
-    Q = mean_n [mean_j min_k |y_n(tau_j) - z_k|^2 + mean_k min_j |y_n(tau_j) - z_k|^2]   (the paths, Chamfer)
-    E = mean_n |y_n(T_n) - phi(x_demo,n(T_n))|^2                                         (arrive with the demo)
-    R = mean_{n,r} |y_n(T_n (1 + r)) - y*|^2,   r in ``REST_TIMES``                      (then rest at the goal)
-
-L is minimised by full-batch L-BFGS.
-
-**Feasibility.** A demo that starts at x(0) and is at x(t) at time t can only be followed if
-|x(t)| e^(lambda t) / |x(0)| <= sqrt(KAPPA); ``feasible_rate`` gives the largest such lambda, and
-training warns (``RateFeasibilityWarning``) when the requested rate is above it.
-
-Units: x_n = (x - goal) / s is an isotropic scaling and time is not rescaled, so lambda is the
-same in user time (1/s), the metric in user units is M(x) = M_n(x_n) / s^2 (``metric``,
-``metric_bounds``) and b/a and Lip(f) are unit-free.
+Training minimises Eq. (C5) by full-batch L-BFGS: the field's direction and the demos' paths and
+arrival, their speed only weakly, because a contracting field's speed along a trajectory can grow at
+most sqrt(b/a)-fold and demos that start from rest cannot be followed in time (``feasible_rate``,
+``RateFeasibilityWarning``). lambda is in 1/s of user time; b/a and Lip(f) are unit-free.
+The derivations of Eqs. (C1)-(C6): docs/equations.md.
 
 References
 ----------
@@ -85,8 +24,6 @@ Lohmiller, W., Slotine, J.-J. E. (1998). On contraction analysis for non-linear 
 Automatica 34(6), 683-696. doi:10.1016/S0005-1098(98)00019-3
 Rana, M. A., Li, A., Fox, D., Boots, B., Ramos, F., Ratliff, N. (2020). Euclideanizing flows:
 diffeomorphic reduction for learning stable dynamical systems. L4DC, PMLR 120. arXiv:2005.13143
-Behrmann, J., Grathwohl, W., Chen, R. T. Q., Duvenaud, D., Jacobsen, J.-H. (2019). Invertible
-residual networks. ICML. arXiv:1811.00995
 """
 
 from __future__ import annotations
@@ -109,8 +46,7 @@ from lfd.learners.flows import SWIRL_COMPONENTS, BoundedFlow, bounded_flow_numpy
 from lfd.threads import torch_threads
 from lfd.validate import check_bools, check_ints
 
-# 1/s. With the path loss of Eq. (C5) the rate matters little for the fit (30 LASA shapes at
-# KAPPA = 100, scripts/contraction_tradeoff.py: mean DTW 514 at 0.1/s, 563 at 0.5/s, 602 at 1/s);
+# 1/s. With the path loss of Eq. (C5) the rate matters little for the fit (reports/contraction_tradeoff.md);
 # a faster rate makes every rollout arrive sooner, but fewer demos can be followed in time
 # (``feasible_rate`` is an upper bound on it).
 DEFAULT_RATE = 0.5
@@ -160,9 +96,9 @@ class ContractionConfig:
     window: float = 1.5
     length_scale: float = 0.5
     damping: bool = True
-    # Chosen on 10 LASA shapes (mean DTW, 812 at these defaults): speed_weight 0.02 / 0.1 / 0.5 gave
-    # 836 / 1020 / 1232 (traj_weight 10, 200 evaluations); traj_weight 3 / 10 gave 806 / 836
-    # (speed_weight 0.02, 200 evaluations); 120 / 200 evaluations gave 822 / 806 (noise about 30).
+    # Chosen by mean DTW on LASA shapes: a larger speed_weight pulls the paths away from the demos
+    # (Eq. (C5)), traj_weight 3 fits better than 10, and more L-BFGS evaluations gain less than the
+    # run-to-run noise.
     iterations: int = 150
     batch: int = 300
     speed_weight: float = 0.02
@@ -219,9 +155,9 @@ class ContractionModule(nn.Module):
         eigenvalues clipped below at 1e-3. With phi = identity, f(x) = A x then starts as the
         best linear contracting field (up to that projection).
         """
-        # normal equations summed by torch, not LAPACK's least squares: MKL's gelsy took a
-        # process-dependent path (2 distinct results in 8 runs on the same data), and L-BFGS turned
-        # that last-bit difference into 3e-8 relative in a trained model
+        # normal equations summed by torch, not LAPACK's least squares: MKL's gelsy takes a
+        # process-dependent path (last-bit differences on the same data), which L-BFGS amplifies
+        # into visibly different trained models
         gram = (x[:, :, None] * x[:, None, :]).sum(0)               # X'X, (d, d)
         cross = (x[:, :, None] * v[:, None, :]).sum(0)              # X'V, (d, d)
         a_ls = torch.linalg.solve(gram, cross).T                     # v ~ A_ls x
@@ -364,7 +300,7 @@ class ContractionField(ContractingField):
 
     def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
         """x (d,) -> f(x) (d,) in user units: the normalisation, phi, J_phi and the d x d solve of
-        Eq. (C3) in one compiled call (``lfd.learners.flow_kernel``; ``scripts/bench_field.py``
+        Eq. (C3) in one compiled call (``lfd.learners.flow_kernel``; ``scripts/speed_field.py``
         measures it; see ``VelocityField.single_point_evaluator``). The numpy twin of phi and J_phi
         is ``bounded_flow_numpy``."""
         from lfd.learners.flow_kernel import contraction_point_fn
@@ -536,7 +472,15 @@ class _FitData:
         return cls(x_all, v_all, x_in, v_dir, v_log, w, tk, len(x), n0, len(k_idx), config.path_samples)
 
     def loss(self, module: ContractionModule, config: ContractionConfig) -> torch.Tensor:
-        """Eq. (C5): direction and weak speed matching, plus ``traj_weight`` times the path terms."""
+        """Eq. (C5) (docs/equations.md) in normalised units, a scalar tensor:
+
+            L = mean_i w_i |f_i/|f_i| - xd_i/|xd_i||^2 + mu mean_i w_i (log |f_i| - log |xd_i|)^2
+                + w_x (Q + E + R) / mean |phi(x_demo) - y*|^2,
+
+        with w_i = |xd_i| / rms |xd|, mu = ``speed_weight``, w_x = ``traj_weight``; per demo, Q is the
+        Chamfer distance between its latent rollout (Eq. (C2)) and its latent points, E the rollout's
+        arrival error at T_n and R its distance from y* at T_n (1 + r), r in ``REST_TIMES``.
+        """
         nv, n0 = self.nv, self.n0
         f, y, y_star, _ = module.velocity_and_latent(self.x_in)
         f2 = (f[:nv] * f[:nv]).sum(1) + _F_EPS                                 # |f|^2 (> 0)

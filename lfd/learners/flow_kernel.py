@@ -1,7 +1,7 @@
 """The compiled single-point evaluation of a contraction field, Eq. (C3), for control loops.
 
 A contraction field's single-point evaluation is called once per control step (500 Hz and more); the numpy version
-(``lfd.learners.flows.bounded_flow_numpy``) costs ~30 numpy calls per point. This module fuses
+(``lfd.learners.flows.bounded_flow_numpy``) makes dozens of small numpy calls per point. This module fuses
 phi, J_phi (Eqs. (F1)-(F3)) and the d x d solve into one numba function (compiled once per
 machine; ``cache=True`` keeps the machine code beside this file), made of small ``njit`` helpers
 (one swirl, one residual block) that numba inlines into it (``inline="always"``). This module is imported lazily (by

@@ -1,47 +1,23 @@
-"""A globally bi-Lipschitz diffeomorphism phi : R^d -> R^d with analytic bounds.
+"""A globally bi-Lipschitz diffeomorphism phi : R^d -> R^d with analytic bounds (``BoundedFlow``).
 
-phi alternates two kinds of layers, each a bijection of R^d with a Jacobian whose singular values
-are bounded on ALL of R^d by constants computed from its parameters:
+phi alternates two kinds of layers, each a bijection of R^d whose Jacobian has singular values
+bounded on ALL of R^d by constants computed from its parameters:
 
-**Swirls** (rotation is cheap). Around a centre c, rotate by an angle that decays with the distance,
+    Eq. (F1): swirl  y = c + R(theta(r)) (x - c),  r = |x - c|,  theta(r) = sum_j Theta_j exp(-r^2 / (2 rho_j^2)),
+    Eq. (F3): block  y = x + e(x) W2 tanh(W1 x + b1),  e(x) = exp(-|x|^2 / (2 R^2)),
 
-    Eq. (F1): y = c + R(theta(r)) (x - c),   r = |x - c|,   theta(r) = sum_j Theta_j exp(-r^2 / (2 rho_j^2)),
-
-(R(theta) the planar rotation for d = 2, the rotation about a learned unit axis a for d = 3). Then
-J = R(theta) (I + theta'(r) r (K u) u'), u = (x - c)/r, K u = J90 u (d = 2) or a x u (d = 3),
-with K u orthogonal to u and |K u| <= 1: a rotation times a shear of slope at most
-m = sup_r r |theta'(r)| <= (2/e) sum_j |Theta_j|. A shear I + m v u' (v orthogonal to u) has
-singular values sigma_max = (m + sqrt(m^2 + 4)) / 2 and 1/sigma_max, so
-
-    Eq. (F2): sigma(J_swirl(x)) in [1/sigma_max(m), sigma_max(m)]   for every x,
-
-and |y - c| = r, so the inverse is x = c + R(-theta(|y - c|)) (y - c), in closed form.
-
-**Residual blocks** (local stretch). An invertible ResNet block with a Gaussian window,
-
-    Eq. (F3): y = x + g(x),   g(x) = e(x) W2 tanh(W1 x + b1),   e(x) = exp(-|x|^2 / (2 R^2)).
-
-With H1 = min(|W1|_2 |W2|_2, sum_j |W2[:, j]| |W1[j]|) >= |grad(W2 tanh(W1 x + b1))| and
-h0 = |W2 tanh(b1)|, Lip(g) <= 2 e^(-1/2) H1 + e^(-1/2) h0 / R =: B; a block whose residual is
-Lipschitz with c < 1 is a bijection (Banach: x = lim y - g(x_i)) with singular values in
-[1 - c, 1 + c].
-
-**The budget.** The user's KAPPA bounds b/a = (s_hi / s_lo)^2 with s_hi = prod sigma_max and
-s_lo = prod sigma_min over the layers (Eq. (F4)), i.e. sum over layers of the log-condition
-beta_k = log(sigma_max / sigma_min) <= log sqrt(KAPPA). The split beta_k = softmax(w)_k log sqrt(KAPPA)
-is learned; a swirl with budget beta_k gets the slope m_k = 2 sinh(beta_k / 2) (sigma_max / sigma_min
-= sigma_max^2 = e^beta), a block c_k = tanh(beta_k / 2) ((1 + c)/(1 - c) = e^beta). Each layer's raw strength S (the
-swirl's (2/e) sum |Theta_j|, the block's B) is scaled by the smooth saturation
-alpha = cap tanh(S / cap) / S, so the layer's bound is below its cap for every parameter value:
+a rotation that decays with the distance (singular values in [1/sigma_max(m), sigma_max(m)] for the
+shear slope m, Eq. (F2); inverse in closed form) and an invertible residual block with a Gaussian
+window (Lipschitz residual c < 1: singular values in [1 - c, 1 + c], inverse by fixed-point
+iteration). The user's KAPPA is split over the layers as a learned log-condition budget, and each
+layer's strength is smoothly saturated below its share, so that
 
     Eq. (F4): s_lo = prod_k sigma_min,k <= sigma(J_phi(x)) <= prod_k sigma_max,k = s_hi   for all x,
 
-and b/a = (s_hi / s_lo)^2 < KAPPA by construction. With M = J_phi' J_phi these are the metric
-bounds a = s_lo^2, b = s_hi^2 of the paper's contraction bound, Eq. (18) (``lfd.learners.contraction``).
-
-**Curvature** (for the field's Lipschitz bound, ``lfd.learners.contraction``): each layer bounds
-|D J_k(x)| by a function of the distance of its input from its centre that decays like a Gaussian
-(``LayerBound.curvature``), and moves points by at most ``drift``.
+with b/a = (s_hi / s_lo)^2 < KAPPA for every parameter value: the metric bounds a = s_lo^2,
+b = s_hi^2 of the paper's Eq. (18) (``lfd.learners.contraction``). Each layer also bounds its
+curvature |D J_k| (Eq. (F5), ``LayerBound.curvature``) for the field's Lipschitz bound, Eq. (C6).
+The derivations of Eqs. (F1)-(F5): docs/equations.md.
 
 References
 ----------

@@ -3,32 +3,19 @@
 The field is dx_n/dt = f_theta(x_n), the paper's NODE, Eq. (12): an MLP as its Eqs. (7) and (14)
 but with a linear output layer (a ReLU or tanh output would make every velocity component
 non-negative or bounded by 1; a field that reaches a goal needs both signs), any number of hidden
-layers, optionally shifted so the goal is an equilibrium:
-
-    f_theta(x) = g_theta(x) - g_theta(0)                                   (goal_equilibrium)
-
-It is trained by multiple shooting on the trajectory-matching loss: from a demo sample x_k,
-integrate ``seg`` samples with torchdiffeq and compare with the demo,
+layers, and with ``goal_equilibrium`` f_theta(x) = g_theta(x) - g_theta(0), so the goal is an
+equilibrium exactly. It is trained by multiple shooting on the paper's loss, Eqs. (4) and (13):
 
     L(theta) = 1 / (B (S - 1) d) sum_b sum_{j=1}^{S-1} || phi_theta(t_{k+j} - t_k; x_k) - x_{k+j} ||^2,
 
-where phi_theta is the flow of f_theta (the paper's forward ODESolve, Eq. (5), stepping as its
-Eq. (3)). This is the paper's loss, Eqs. (4) and (13), by multiple shooting: each segment starts
-from a demo sample rather than one integration running from x(t_0) through the whole demo, whose
-errors compound. Gradients backpropagate through the solver's steps, or, with ``adjoint``, by the
-paper's adjoint ODE, Eq. (6). The segment length S grows from ``seg_start`` to ``seg``
-over the first ``curriculum`` fraction of the iterations (short segments first: cheap and
-well conditioned; long segments last: they penalise drift). Each batch draws one segment from
-each of ``batch`` equal strata of the segments (ordered by demo and time), so fast and slow parts
-are all seen at every step. Adam with a cosine learning rate from ``lr`` to ``lr_final``.
-Training is bound by per-op overhead (batches of ~100 points), so the MLP runs as one fused
-autograd node with a hand-written backward (``_ScaledMLP``, checked by gradcheck in the tests).
-
-Each demo i is integrated on its own sample grid t_k = t_0 + k h_i: the solver runs in
-sample units tau = (t - t_k) / h_i on dx/dtau = h_i f_theta(x), so demos of different
-durations share one batch. Demos on non-uniform grids are resampled (linearly) onto
-uniform ones. The solvers and their options are those of ``lfd.integrate.SOLVERS``; see
-docs/equations.md for the map from the paper's equations to this code.
+each of the B segments integrating S samples from a demo sample x_k with torchdiffeq (phi_theta the
+flow of f_theta, the paper's Eq. (5), stepping as its Eq. (3)), rather than one integration through a
+whole demo, whose errors compound. Gradients backpropagate through the solver's steps, or, with
+``adjoint``, by the paper's adjoint ODE, Eq. (6). S grows from ``seg_start`` to ``seg`` (a curriculum);
+batches are stratified over demo and time; Adam with a cosine learning rate. Training is bound by
+per-op overhead (the batches are small), so the MLP runs as one fused autograd node with a
+hand-written backward (``_ScaledMLP``, checked by gradcheck in the tests). The details (sample units,
+curriculum, strata): docs/equations.md, "The NODE's loss".
 
 References
 ----------
@@ -64,7 +51,7 @@ ACTIVATIONS: dict[str, type[nn.Module]] = {
 }
 DTYPES: dict[str, torch.dtype] = {"float32": torch.float32, "float64": torch.float64}
 # Training runs on one thread: with batches of a few hundred points the MLP is bound by
-# per-op overhead, and a second thread measured no faster (slower under load) on 2 cores.
+# per-op overhead, so a second thread does not help, and it slows down under load.
 TRAIN_THREADS = 1
 POSTFIX_EVERY = 25
 MAX_LR = 1e3

@@ -1,57 +1,22 @@
 """Tracking learner: a field that contracts, at a user rate K, toward a learned reference motion, in phase.
 
-The reference is learned from all the demos. Each demo i, of duration T_i, is indexed by its
-normalised time (the phase) s = (t - t_i0) / T_i in [0, 1] and fitted by a least-squares cubic
-B-spline (``scipy.interpolate.make_lsq_spline``, ``knots`` uniform interior knots) in normalised
-coordinates; the reference is their mean,
-
-    Eq. (T1): r(s) = (1/N) sum_i x_i(s),   r'(s) = dr/ds,   T = (1/N) sum_i T_i,
-
-tabulated with its derivative at ``table`` phases (buffers of the torch module, so model files
-carry it) and cubic-Hermite interpolated between them (C1 in s). With ``condition_start`` the
-reference is conditioned on the start x0 as a ProMP is (Paraschos et al. 2013): with the demos'
-empirical cross-covariance C(s, 0) = cov_i(x_i(s), x_i(0)) and delta = x0 - r(0),
-
-    Eq. (T2): r(s | x0) = r(s) + G(s) delta,   G(s) = C(s, 0) (C(0, 0) + sigma^2 I)^-1,
-
-so a start like a demo's start follows that demo's shape (G(0) ~ I, G(1) = 0: the goal is kept).
-The conditioning is a Gaussian model of the demos' starts, valid inside their spread only, so the
-offset is clamped to the ellipsoid of Mahalanobis radius rho (``start_radius``) of that model:
-
-    Eq. (T2a): delta_c = delta min(1, rho / |delta|_P),   |delta|_P = sqrt(delta' P delta),
-               P = (C(0, 0) + sigma^2 I)^-1,
-
-and Eq. (T2) uses delta_c. A start within the demos' spread (every demo start, |delta|_P < 2 for
-up to 5 demos) keeps its own offset and reproduces its demo's shape; a start further out follows
-the demo-like reference nearest to it and converges onto it at rate K (Eq. (T5)), so K, not
-the demos' pace, sets how fast it joins the demonstrated motion.
-
-The state is (x, s), s(0) = 0 (plus the constant delta with ``condition_start``): the phase s
-stands in for the time argument of the paper's Eq. (10), so the field stays autonomous. The field is
+The reference r(s) is the mean of the demos, each a cubic B-spline in its phase s in [0, 1]
+(Eq. (T1)); with ``condition_start`` it is conditioned on the start x0 as a ProMP is (Eq. (T2): a
+demo's start follows that demo's shape), the offset clamped to the demos' spread (Eq. (T2a)). The
+state is (x, s), s(0) = 0; the phase stands in for the time of the paper's Eq. (10), so the field
+stays autonomous:
 
     Eq. (T3): dx/dt = s_dot r'(s) + K (r(s) - x),
     Eq. (T4): ds/dt = h(|x - r(s)|) c(s) / T,   h(e) = 1 / (1 + (e / eps)^2),
-              c(s) = min(1, (1 - s) / 0.01) (the phase stops at s = 1 exactly, without overshoot),
 
-with e in normalised units (a fraction of the demos' size). h is the phase stopping of DMPs
-(Ijspeert et al. 2013, Eq. 2.11): the phase runs at the demos' pace on the path and waits when the
-motion is held back, so the reference never runs away. At s = 1 the field is K (r(1) - x):
-the goal r(1) is a globally exponentially stable equilibrium.
+c(s) stopping the phase at s = 1 exactly (``PHASE_END``) and h the phase stopping of DMPs (the phase
+waits when the motion is held back). For ANY phase law the error e = x - r(s) obeys de/dt = -K e:
 
-Contraction property (the paper's Eqs. (16)-(18)). Let e = x - r(s). For ANY phase law s_dot,
-Eq. (T3) gives de/dt = dx/dt - r'(s) s_dot = -K e, hence
+    Eq. (T5): |x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t),
 
-    Eq. (T5): |x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t)    (Eq. (18) with lambda = K, overshoot 1),
-
-and for a given phase signal s(t) the x-subsystem dx/dt = s_dot(t) r'(s(t)) + K (r(s(t)) - x) has
-Jacobian d f / d x = -K I: it contracts at rate K in the Euclidean metric M = I (Eq. (17) with
-a = b = 1, condition number 1; partial contraction, Wang & Slotine 2005). Every start therefore
-converges onto the reference path in phase at rate K; since s_dot >= h(e) / T and e -> 0, the phase
-reaches 1 and every trajectory ends at the goal. The full (x, s) system is not claimed to contract in
-one metric: through h, s_dot depends on x, so two starts may settle on the path at different phases
-(they meet again at the goal). ``check_tracking_contraction`` verifies Eq. (T5) and J = -K I numerically.
-
-Units: x_n = (x - goal) / scale and time is not rescaled, so K is in 1/s of user time.
+the paper's Eq. (18) with lambda = K and overshoot 1: for a given phase signal the x-subsystem has
+Jacobian -K I and contracts at rate K in the Euclidean metric (the paper's Eq. (17), a = b = 1;
+``check_tracking_contraction``). K is in 1/s. Derivations of Eqs. (T1)-(T5): docs/equations.md.
 
 References
 ----------
@@ -61,8 +26,6 @@ doi:10.1162/NECO_a_00393
 Paraschos, A., Daniel, C., Peters, J., Neumann, G. (2013). Probabilistic movement primitives. NeurIPS.
 Wang, W., Slotine, J.-J. E. (2005). On partial contraction analysis for coupled nonlinear
 oscillators. Biological Cybernetics 92, 38-53. doi:10.1007/s00422-004-0527-x
-Lohmiller, W., Slotine, J.-J. E. (1998). On contraction analysis for non-linear systems.
-Automatica 34(6), 683-696. doi:10.1016/S0005-1098(98)00019-3
 """
 
 from __future__ import annotations
@@ -79,7 +42,7 @@ from torch import nn
 
 from lfd import integrate
 from lfd.demos import DemoSet
-from lfd.field import ContractingField, VelocityField
+from lfd.field import ContractingField, FieldKind, VelocityField
 from lfd.learners.base import Learner
 from lfd.validate import check_bools, check_ints, check_positive
 
@@ -238,6 +201,7 @@ class TrackingField(ContractingField):
     """
 
     module: TrackingModule
+    kind: ClassVar[FieldKind] = FieldKind.PHASED
 
     # ---- the contraction certificate's constants (``rate`` is K of Eq. (T3), 1/s)
     @property
@@ -312,8 +276,8 @@ class TrackingField(ContractingField):
 
     def phase_point_fn(self, x0: np.ndarray | None = None) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
         """A fast numpy evaluator (x (d,), s) -> (dx/dt (d,), ds/dt) in user units for control loops
-        (Eqs. (T3)-(T4); with ``condition_start``, for the run that started at x0). Agrees with
-        ``velocity`` to 1e-12."""
+        (Eqs. (T3)-(T4); with ``condition_start``, for the run that started at x0). The same floats
+        as ``velocity`` up to round-off (tests/test_tracking.py)."""
         mod = self.module
         ref, dref = mod.ref.numpy().copy(), mod.dref.numpy().copy()
         if x0 is not None and self.conditioned:
@@ -504,23 +468,18 @@ def check_tracking_contraction(field: TrackingField, lo: np.ndarray | None = Non
     """Check the stated contraction property of a tracking field numerically on a box.
 
     1. Jacobian: at ``n_points`` random (x, s, s_dot), x ~ U(lo, hi), s ~ U(0, 1), s_dot ~ U(0, 2/T),
-       the x-subsystem f(x) = s_dot r'(s) + K (r(s) - x) (Eq. (T3), phase signal held) must satisfy
-       max eig(sym(df/dx)) <= -K (Eq. (17) with M = I, lambda = K), by reverse-mode autodiff.
-    2. Error decay: from ``n_starts`` random starts in the box, the closed-loop (x, s) rollout
-       (Eqs. (T3)-(T4), RK4, 2 ``steps`` steps over ``horizon``, default 1.5 T) must keep
+       the x-subsystem of Eq. (T3) (phase signal held) must satisfy max eig(sym(df/dx)) <= -K within
+       ``tolerance`` (relative): Eq. (17) with M = I, lambda = K, by reverse-mode autodiff.
+    2. Error decay: from ``n_starts`` random starts, the closed-loop (x, s) rollout (Eqs. (T3)-(T4),
+       RK4, 2 substeps per step, ``steps`` steps over ``horizon``, default 1.5 T) must keep
        |x(t) - r(s(t))| <= |x(0) - r(0)| exp(-K t) + ERROR_FLOOR (normalised units), Eq. (T5).
-    The Jacobian bound holds within ``tolerance`` (relative). The box [lo, hi], arrays of shape (d,),
-    user units, defaults to the training demos' box (``field.demo_box``) grown by 50%.
 
-    Also reported, not checked: ``coupled_worst_eig``, max eig(sym(J)) of the closed-loop x-Jacobian
-    with s_dot = h(|x - r(s)|) / T differentiated too (the phase coupling of Eq. (T4)).
-
-    Returns a dict: ``property`` (text), ``rate`` K, ``bound`` -K, ``worst_eig``, ``certified`` (bool),
-    ``metric_bounds`` [a, b], ``condition_number`` b/a, ``lipschitz_bound`` (closed loop, see
-    ``TrackingField.lipschitz_bound``), ``subsystem_lipschitz`` (K), ``worst_error_ratio``
-    (max over t > 0 of |e(t)| / (|e(0)| exp(-K t)) where the bound exceeds 100 ERROR_FLOOR),
-    ``worst_error_excess`` (max of |e(t)| - |e(0)| exp(-K t), normalised units), ``coupled_worst_eig``,
-    ``n_points``, ``n_starts``, ``box`` [lo, hi] (user units).
+    lo, hi : array, shape (d,), user units; default the training demos' box (``field.demo_box``)
+    grown by 50%. Returns a dict: ``certified`` (bool), ``rate`` K, ``bound`` -K, ``worst_eig``,
+    ``worst_error_ratio`` and ``worst_error_excess`` (normalised units), ``coupled_worst_eig`` (the
+    closed-loop x-Jacobian with the phase coupling of Eq. (T4), reported, not checked), the field's
+    ``property``, ``metric_bounds`` [a, b], ``condition_number`` b/a, ``lipschitz_bound``,
+    ``subsystem_lipschitz`` (K), ``n_points``, ``n_starts`` and ``box`` [lo, hi] (user units).
     """
     if lo is None or hi is None:
         if field.demo_box is None:

@@ -20,7 +20,7 @@ class DlsGains:
     posture_gain: k_p [1/s] of the null-space pull toward q_home;
     limit_margin: kept distance to joint limits [rad|m];
     speed_fraction: the IK commands at most this fraction of each joint's v_max, in (0, 1]: the joint
-    servo overshoots its command slightly (computed torque on the Panda: up to 0.7% at 1.0)."""
+    servo overshoots its command slightly, so at 1 a joint can exceed its v_max a little."""
 
     damping: float = 0.05
     sv_threshold: float = 0.05
@@ -120,7 +120,7 @@ class DlsBackend:
         qdot = self._resolve(jac, v, z)
         if dt != self._fast_dt:
             self._fast_dt, self._fast_half = dt, self._half - self._v_max * dt
-        # ndarray.tolist() + builtin any() costs half of ndarray.any() on 7 entries
+        # ndarray.tolist() + builtin any() is cheaper than ndarray.any() on so few entries
         if qdot.dot(qdot) <= self._fast_speed2 and not any((np.abs(q - self._mid) > self._fast_half).tolist()):
             return qdot
         lo_pos = np.minimum(self._q_lo - q, 0.0) / dt

@@ -1,10 +1,10 @@
-"""Benchmark: one single-point call ``field(x)`` per learner, the control-loop path.
+"""Speed: one single-point call ``field(x)`` per learner, the control-loop path.
 
 Prints the median and p95 in microseconds over blocks of calls, the first-call time (numba compiles
-or loads the contraction kernel then), and the ratio to the NODE. Asserts nothing. Targets
-(issue 8): contraction <= 20 us, NODE <= 10 us.
+or loads the contraction kernel then), and the ratio to the NODE. Asserts nothing. Targets:
+contraction <= 20 us, NODE <= 10 us.
 
-    python scripts/bench_field.py
+    python scripts/speed_field.py
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import time
 import warnings
 
 import numpy as np
-from _bench import run_main
+from _speed import run_main
 
 
 def time_calls(f, x: np.ndarray, blocks: int = 200, calls: int = 50) -> tuple[float, float]:  # type: ignore[no-untyped-def]
@@ -52,4 +52,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    run_main(main, "bench_field")
+    run_main(main, "speed_field")

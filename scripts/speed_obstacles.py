@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Obstacle avoidance and moving goals (issue 14): the measured numbers. Prints, asserts nothing.
+"""Obstacle avoidance and moving goals in task space: what they cost and achieve. Prints, asserts nothing.
 
 1. Spiral and 5 LASA shapes, a contraction field trained with default options, a sphere on the
    demonstrated path (centre on the mean demo at 45% of its arc length, radius 8% of the extent):
@@ -15,7 +15,7 @@
    avoiding field against the bare field's ``point_fn``, interleaved; median and p95 of each and of
    the extra per call, and the ratio. Wall clock: note the load average printed with it.
 
-Usage: python scripts/bench_obstacles.py [--shapes Angle,Sshape,...] [--starts 100] [--calls 20000]
+Usage: python scripts/speed_obstacles.py [--shapes Angle,Sshape,...] [--starts 100] [--calls 20000]
 """
 
 from __future__ import annotations

@@ -3,14 +3,14 @@
 choice of actuation by measurement.
 
 Part 1 (cost), for each field of ``--learner`` (default: node and contraction): the control
-step of ``sim.rollout.execute`` (``mj_step1``, read state, FK, field at the measured position,
+step of ``sim.loop.execute`` (``mj_step1``, read state, FK, field at the measured position,
 the fused twist + IK + actuator command, perturbation hooks, ``mj_step2``) timed step by step,
 and a bare ``mujoco.mj_step`` of the same model at the run's start, at rest, measured in the
 same run in interleaved blocks (so machine load hits both alike). Prints median and p95 of each
 and their ratio; the same ratio in CPU time (``time.thread_time`` over the whole loop and over
 as many bare steps: preemption by other processes does not count), and the real-time factor
-(simulated s per wall s, and per CPU s); the issue-15 targets (ratio <= 3, real-time factor >=
-100) are marked MET / NOT MET. Then where the time goes (an instrumented copy of the same step),
+(simulated s per wall s, and per CPU s); the targets (ratio <= 3, real-time factor >= 100) are
+marked MET / NOT MET. Then where the time goes (an instrumented copy of the same step),
 the field alone, and what dm_control's ``Environment.step`` costs for the same step. A summary
 closes the run.
 
@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-from _bench import none_and_push, run_main
+from _speed import none_and_push, run_main
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
@@ -79,7 +79,7 @@ def holding_data(exp: sim.Experiment, q: np.ndarray) -> mujoco.MjData:
 
 def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict[str, np.ndarray]:
     """Per-stage wall times of ``steps`` control steps of the rollout loop (the same calls as
-    ``sim.rollout.execute``, timed one by one), shape (steps,) each."""
+    ``sim.loop.execute``, timed one by one), shape (steps,) each."""
     env = sim.make_environment(exp.robot, exp.placement, exp.start, field.goal, duration_s=exp.duration_s,
                                rotation_ref=exp.rotation_ref, physics=exp.physics, **exp.options)
     env.reset()
@@ -146,10 +146,10 @@ def env_steps(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> np.n
 def cost(exp: sim.Experiment, field: lfd.VelocityField, repeats: int) -> dict[str, float]:
     """Print the control step against a bare mj_step and the real-time factor; returns the ratios."""
     m = exp.physics.model.ptr
-    exp.rollout(field)                          # warm-up: JIT kernels, caches
+    exp.simulate(field)                          # warm-up: JIT kernels, caches
     bare, loop, rtf, cpu_ratio, cpu_rtf = [], [], [], [], []
     for _ in range(repeats):
-        ro = exp.rollout(field)
+        ro = exp.simulate(field)
         loop.append(ro.step_time_s)
         rtf.append(ro.realtime_factor)
         d = holding_data(exp, ro.q[0])
@@ -209,7 +209,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (exit 2)."""
 
     def error(self, message: str) -> Any:
-        self.exit(2, f"bench_loop: error: {message} (see --help)\n")
+        self.exit(2, f"speed_loop: error: {message} (see --help)\n")
 
 
 def main() -> int:
@@ -226,7 +226,7 @@ def main() -> int:
     ap.add_argument("--skip-actuation", action="store_true", help="only the cost part (no parts 2, 3)")
     args = ap.parse_args()
     if not 1 <= args.repeats <= 1000:
-        print("bench_loop: error: --repeats must be in 1..1000", file=sys.stderr)
+        print("speed_loop: error: --repeats must be in 1..1000", file=sys.stderr)
         return 2
     learners = [s.strip() for s in args.learner.split(",") if s.strip()]
     try:
@@ -235,7 +235,7 @@ def main() -> int:
         robot = load_robot(args.robot, actuation=args.actuation)
         exp = sim.Experiment(robot, demos, plane=args.plane, ik=args.ik)
     except (lfd.LfdError, sim.SimError, RobotError) as e:
-        print(f"bench_loop: error: {e}", file=sys.stderr)
+        print(f"speed_loop: error: {e}", file=sys.stderr)
         return 2
     summary = []
     for field in fields:
@@ -243,7 +243,7 @@ def main() -> int:
               f"control {exp.options['control_hz']:g} Hz, load average {os.getloadavg()[0]:.2f} "
               f"on {os.cpu_count()} CPUs")
         summary.append((field.learner, cost(exp, field, args.repeats)))
-    print("\nsummary (issue 15 targets: step / bare mj_step <= 3, real-time factor >= 100; CPU time, "
+    print("\nsummary (targets: step / bare mj_step <= 3, real-time factor >= 100; CPU time, "
           "wall-clock median in brackets)")
     for name, r in summary:
         print(f"  {name:12s} step ratio {r['cpu_ratio']:5.2f} [{r['ratio']:5.2f}] "
@@ -258,4 +258,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    run_main(main, "bench_loop")
+    run_main(main, "speed_loop")

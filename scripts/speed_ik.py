@@ -17,7 +17,7 @@ import sys
 import time
 
 import numpy as np
-from _bench import run_main
+from _speed import run_main
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
@@ -62,12 +62,12 @@ def main() -> int:
         robot = load_robot(args.robot, actuation=args.actuation)
         exps = {b: sim.Experiment(robot, demos, ik=b) for b in IK_BACKENDS}
     except (lfd.LfdError, sim.SimError, RobotError) as e:
-        print(f"bench_ik: error: {e}", file=sys.stderr)
+        print(f"speed_ik: error: {e}", file=sys.stderr)
         return 2
     print(f"robot {robot.name}, field {field.learner} ({args.demos}), actuation {args.actuation}, "
           f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     ref = exps["dls"].run(field, "none")
-    q_path = ref.rollout.q[:-1]
+    q_path = ref.trace.q[:-1]
     print(f"\nspeed: solve() on the {len(q_path)} states of one dls rollout")
     for b in IK_BACKENDS:
         t = replay_cost(exps[b], field, q_path, b)
@@ -84,4 +84,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    run_main(main, "bench_ik")
+    run_main(main, "speed_ik")

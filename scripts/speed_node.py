@@ -1,9 +1,9 @@
-"""Benchmark: the NODE learner on torchdiffeq's spiral (examples/ode_demo.py).
+"""Speed and accuracy of the NODE learner on torchdiffeq's spiral (examples/ode_demo.py).
 
 True dynamics dy/dt = y^3 A (y a row vector, cube elementwise), A = [[-0.1, 2.0], [-2.0, -0.1]],
-y0 = (2, 0), t in [0, 25], 1000 samples (dopri5, rtol 1e-10). torchdiffeq's own script (dopri5,
-batch_time 10, batch_size 20, 2000 iterations) took 130 s on our 2-core machine and reached a
-full-trajectory MAE of 0.10 to 0.67. Target: MAE <= 0.05 in <= 13 s, from a plain MLP on y.
+y0 = (2, 0), t in [0, 25], 1000 samples (dopri5, rtol 1e-10). The baseline is torchdiffeq's own
+script (dopri5, batch_time 10, batch_size 20, 2000 iterations; its time and error are in the README's
+measured results). Target: MAE <= 0.05 in <= 13 s, from a plain MLP on y.
 
 What runs is ``lfd.train("node", ...)``: the learner's normalisation (goal = last sample, unit
 box), multiple shooting with stratified batches, a curriculum on the segment length and a cosine
@@ -15,7 +15,7 @@ units, with y_hat integrated from y0 over the whole span by dopri5 (rtol 1e-7) i
 learned field's own flow, not the training solver. Also times ``field.single_point_evaluator()``, the numpy
 single-point path of the control loop (median and p95). Prints numbers; never asserts a time.
 
-    python scripts/bench_node.py [--seeds 0 1 2] [--iters 800] [--progress]
+    python scripts/speed_node.py [--seeds 0 1 2] [--iters 800] [--progress]
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ A = ((-0.1, 2.0), (-2.0, -0.1))
 Y0 = (2.0, 0.0)
 T_END, N_SAMPLES = 25.0, 1000
 # Options of the run. Unlike the learner's defaults (tuned for ~100-sample robot demos): all 1000
-# samples (samples=0), batch 256 and 800 iterations, lr 2e-2 (over seeds 0-4: max MAE 0.036,
-# against 0.040 with 1e-2 and 0.046 with 700 iterations), no equilibrium imposed at the goal.
+# samples (samples=0), batch 256 and 800 iterations, lr 2e-2 (over seeds 0-4 a smaller lr or fewer
+# iterations gave a larger worst MAE), no equilibrium imposed at the goal.
 OPTIONS = dict(hidden=(64, 64), activation="tanh", iterations=800, lr=2e-2, lr_final=1e-4, seg=10, seg_start=2,
                curriculum=0.5, batch=256, samples=0, solver="rk4", dtype="float32",
                goal_equilibrium=False)

@@ -1,10 +1,10 @@
-"""What the benchmark scripts (``scripts/bench_*.py``) share.
+"""What the speed scripts (``scripts/speed_*.py``) share.
 
 * ``run_main``: run a script's ``main`` as the process, Ctrl-C ending it with one line and exit 130;
 * ``none_and_push``: the metrics of one field on an experiment unperturbed and under the default push,
   and the push's recovery time as text.
 
-Imported by those scripts as ``_bench`` (Python puts the script's own folder first on ``sys.path``).
+Imported by those scripts as ``_speed`` (Python puts the script's own folder first on ``sys.path``).
 """
 
 from __future__ import annotations

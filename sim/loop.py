@@ -3,30 +3,25 @@
 Every control step k (t_k = k dt):
 
 1. read q, qdot of the arm joints from MuJoCo;
-2. p = FK(q): MuJoCo's tool site after ``mj_step1`` (see 6; equal to Pinocchio's FK to ~1e-16 m),
-   else Pinocchio (``controller.measure``); the Jacobian is Pinocchio's;
-3. v = f(x - dg) with x = A^T (p - o) / s the MEASURED tool position in task space
-   (dg: a goal shift, see ``sim.perturbations``), or v = f(x - dg, t_k) for a time-varying field
-   (a goal that moves during the run, ``lfd.goal``; moving obstacles, ``lfd.obstacles``); a field
-   with a phase (``lfd.learners.tracking``)
-   runs through ``PhaseLoop``, which evaluates Eq. (T3) at its phase s and then advances s by one
-   control step of Eq. (T4), so the phase waits while the measured tool is held back;
+2. p = FK(q): MuJoCo's tool site after ``mj_step1`` (see 6; equal to Pinocchio's FK up to
+   round-off), else Pinocchio (``controller.measure``); the Jacobian is Pinocchio's;
+3. v = f(x - dg) with x = A^T (p - o) / s the MEASURED tool position in task space (dg: a goal
+   shift, ``sim.perturbations``), or v = f(x - dg, t_k) for a time-varying field (``lfd.goal``,
+   moving obstacles of ``lfd.obstacles``); a field with a phase (``lfd.learners.tracking``) runs
+   through ``PhaseLoop``: Eq. (T3) at its phase s, then one control step of Eq. (T4), so the phase
+   waits while the measured tool is held back;
 4. qdot_ref = IK(q, twist(v)) and the actuator command (``FieldTrackingTask.apply``, through the
    controller's compiled fast path ``FieldController.fast_command``);
 5. the step's perturbations (push, joint-velocity noise);
-6. ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` (no dm_control wrapper);
-   with computed torque from MuJoCo's dynamics (``dynamics="mujoco"``, the default) the step is
-   split: ``mj_step1`` before step 1 (so the mass matrix and ``qfrc_bias`` describe this state) and
-   ``mj_step2`` after step 5 (then ``mj_step`` for any further physics steps of the control step);
-   during a ``Hold`` window the arm joints are then clamped at rest where the hold began (an
-   immovable obstacle);
-   a NaN/unstable state or a bad control (MuJoCo warnings mjWARN_BADQPOS/QVEL/QACC/CTRL)
-   raises ``SimulationError``.
+6. ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` (no dm_control wrapper); with
+   computed torque from MuJoCo's dynamics (the default) it is split into ``mj_step1`` before step 1
+   (so the mass matrix and ``qfrc_bias`` describe this state) and ``mj_step2`` after step 5; during
+   a ``Hold`` window the arm joints are then clamped at rest where the hold began; a NaN/unstable
+   state or a bad control (mjWARN_BADQPOS/QVEL/QACC/CTRL) raises ``SimulationError``.
 
-The loop itself records, at every control step, q, qdot (as read in step 1), the tool position p,
-the field's command v (step 3) and the external force that ``xfrc_applied`` holds on the push body
-after step 5 (what the push actually applied during the step); full ``qpos`` at the video frame
-times only.
+Each control step records q, qdot (as read in step 1), the tool position p, the command v and the
+force that ``xfrc_applied`` holds on the push body after step 5 (``RunTrace``); the full ``qpos``
+only at the video frame times.
 """
 
 from __future__ import annotations
@@ -46,7 +41,7 @@ from tqdm import tqdm
 from sim.errors import SimulationError
 from sim.task import FieldTrackingTask
 
-FPS = 30.0  # default rate (frames per simulated second) at which a rollout keeps the full qpos for video
+FPS = 30.0  # default rate (frames per simulated second) at which a run keeps the full qpos for video
 
 
 def frame_times(duration_s: float, fps: float = FPS) -> np.ndarray:
@@ -59,7 +54,7 @@ _DIVERGENCE = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVE
 
 
 @dataclass
-class Rollout:
+class RunTrace:
     """One closed-loop run (K control steps, n arm joints, d task dimensions, F video frames).
 
     Attributes
@@ -193,8 +188,8 @@ class PhaseLoop:
 
 
 def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
-            fps: float = FPS, progress: bool = False, desc: str = "rollout",
-            hold: Hold | None = None, timed: bool = False) -> Rollout:
+            fps: float = FPS, progress: bool = False, desc: str = "run",
+            hold: Hold | None = None, timed: bool = False) -> RunTrace:
     """Reset ``env`` and run one episode (module docstring) with a velocity field.
 
     Parameters
@@ -203,7 +198,7 @@ def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
         From ``sim.make_environment`` (its task a ``FieldTrackingTask``).
     field_fn : callable, x (d,) -> v (d,)
         The field in task units, evaluated at the measured tool position every control step (a
-        ``PhaseLoop`` carries its phase; the Rollout then records it).
+        ``PhaseLoop`` carries its phase; the RunTrace then records it).
     fps : float
         Rate at which the full qpos is kept for video, frames per simulated second.
     progress, desc : a progress bar and its label.
@@ -214,7 +209,7 @@ def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
 
     Returns
     -------
-    Rollout
+    RunTrace
         The recorded run; ``SimulationError`` if the simulation diverged.
     """
     task: FieldTrackingTask = env.task
@@ -235,10 +230,10 @@ def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
         mujoco.set_mju_user_warning(prev_handler)
         bar.close()
     if messages:  # MuJoCo's other warnings (e.g. too many contacts): said once, not swallowed
-        warnings.warn(f"MuJoCo warned {len(messages)} time(s) during the rollout: {messages[0].strip()}",
+        warnings.warn(f"MuJoCo warned {len(messages)} time(s) during the run: {messages[0].strip()}",
                       RuntimeWarning, stacklevel=2)
     _record_final(task, d, field_fn, rec, j, timed)
-    return _to_rollout(rec, task, field_fn, wall, cpu, int(getattr(task.controller.ik, "limit_hits", 0) - hits0),
+    return _to_trace(rec, task, field_fn, wall, cpu, int(getattr(task.controller.ik, "limit_hits", 0) - hits0),
                        None if hold is None else (h0 * dt, h1 * dt))
 
 
@@ -316,7 +311,7 @@ def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[
     rec.qdot[K] = d.qvel[task.robot.mj_dof_adr]
     rec.ee[K] = ctl.measure(q)
     x = ctl.to_task(rec.ee[K]) - task.schedule.goal_offset_task
-    if not np.isfinite(x).all():   # diverged: _to_rollout raises SimulationError
+    if not np.isfinite(x).all():   # diverged: _to_trace raises SimulationError
         rec.command[K] = np.nan
     else:
         rec.command[K] = (field_fn.peek(x) if isinstance(field_fn, PhaseLoop) else
@@ -349,9 +344,9 @@ class _Record:
                    np.zeros((K + 1, 3)), np.empty(K), ftimes, fsteps, np.empty((len(fsteps), nq)))
 
 
-def _to_rollout(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.ndarray], wall: float,
-                cpu: float, ik_limit_hits: int, hold_window: tuple[float, float] | None) -> Rollout:
-    """The Rollout of a finished loop (``SimulationError`` if its state went non-finite)."""
+def _to_trace(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.ndarray], wall: float,
+                cpu: float, ik_limit_hits: int, hold_window: tuple[float, float] | None) -> RunTrace:
+    """The RunTrace of a finished loop (``SimulationError`` if its state went non-finite)."""
     robot, K, dt = task.robot, task.n_steps, task.control_dt
     if not (np.isfinite(rec.q).all() and np.isfinite(rec.qdot).all() and np.isfinite(rec.ee).all()):
         raise SimulationError("simulation diverged: NaN in the joint state; no output written")
@@ -360,7 +355,7 @@ def _to_rollout(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., n
     phase = None
     if isinstance(field_fn, PhaseLoop):
         phase = np.asarray(field_fn.trace + [field_fn.s], dtype=np.float64)
-    return Rollout(
+    return RunTrace(
         t=np.arange(K + 1) * dt, ee=rec.ee, q=rec.q, qdot=rec.qdot, command=rec.command, applied_force=rec.force,
         frame_t=rec.frame_t, frame_qpos=rec.frame_qpos,
         step_time_s=rec.step_s, wall_s=wall, start_task=task.start_task.copy(), goal_task=task.goal_task.copy(),

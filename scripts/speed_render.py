@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark: video frames per second of ``sim.render`` (offscreen GL, overlays and H.264 encoding).
+"""Speed: video frames per second of ``sim.render`` (offscreen GL, overlays and H.264 encoding).
 
 Runs a field (the ``tracking`` learner, trained in a moment) on ``--robot`` under three pushes
 (seeds 0, 1, 2), then writes, in interleaved repeats (so machine load hits each case alike):
@@ -14,10 +14,10 @@ and printed as frames per second of wall time (median and p95, i.e. the slowest 
 repeats, and the first repeat, which pays for opening a GL context), and as CPU time per frame
 (this process, llvmpipe's threads included, plus ffmpeg): on a loaded machine the CPU time varies
 less than the wall time. ``side`` / ``separate`` is the time ratio of the
-side-by-side video to the three separate ones (issue 13: <= 1). Targets (issue 13): ``single`` >= 50
+side-by-side video to the three separate ones (target: <= 1); target for ``single``: >= 50
 fps at 640x480. Asserts nothing. Timings are wall clock: note the load average (printed).
 
-    MUJOCO_GL=egl python scripts/bench_render.py --repeats 5
+    MUJOCO_GL=egl python scripts/speed_render.py --repeats 5
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _bench import run_main
+from _speed import run_main
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
@@ -78,7 +78,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (exit 2)."""
 
     def error(self, message: str) -> Any:
-        self.exit(2, f"bench_render: error: {message} (see --help)\n")
+        self.exit(2, f"speed_render: error: {message} (see --help)\n")
 
 
 def main() -> int:
@@ -92,10 +92,10 @@ def main() -> int:
     args = ap.parse_args()
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
     if not cases or any(c not in CASES for c in cases):
-        print(f"bench_render: error: --cases must name some of {', '.join(CASES)}", file=sys.stderr)
+        print(f"speed_render: error: --cases must name some of {', '.join(CASES)}", file=sys.stderr)
         return 2
     if not 1 <= args.repeats <= 1000:
-        print("bench_render: error: --repeats must be in 1..1000", file=sys.stderr)
+        print("speed_render: error: --repeats must be in 1..1000", file=sys.stderr)
         return 2
     try:
         demos = lfd.load_demos(args.demos)
@@ -103,9 +103,9 @@ def main() -> int:
         exp = sim.Experiment(load_robot(args.robot, actuation="torque"), demos)
         runs = [exp.run(field, "push", seed=s) for s in range(3)]
     except (lfd.LfdError, sim.SimError, RobotError) as e:
-        print(f"bench_render: error: {e}", file=sys.stderr)
+        print(f"speed_render: error: {e}", file=sys.stderr)
         return 2
-    print(f"robot {args.robot}, {len(runs[0].rollout.frame_t)} frames per run at {exp.fps:g} fps, "
+    print(f"robot {args.robot}, {len(runs[0].trace.frame_t)} frames per run at {exp.fps:g} fps, "
           f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}, {os.cpu_count()} CPUs")
     times: dict[str, list[float]] = {c: [] for c in cases}
     cpu: dict[str, list[float]] = {c: [] for c in cases}
@@ -133,12 +133,12 @@ def main() -> int:
               f"{np.median(times[case]):9.2f} {np.median(cpu[case]) / frames[case] * 1e3:13.1f}")
     if "side" in times and "separate" in times:
         ratio = np.asarray(times["side"]) / np.asarray(times["separate"])
-        print(f"side-by-side / 3 separate (time): median {np.median(ratio):.2f} (issue 13: <= 1)")
+        print(f"side-by-side / 3 separate (time): median {np.median(ratio):.2f} (target: <= 1)")
     if "single" in times:
         med = frames["single"] / float(np.median(times["single"]))
-        print(f"single video: {med:.1f} fps ({'met' if med >= 50 else 'not met'}: issue 13 wants >= 50)")
+        print(f"single video: {med:.1f} fps ({'met' if med >= 50 else 'not met'}: target >= 50)")
     return 0
 
 
 if __name__ == "__main__":
-    run_main(main, "bench_render")
+    run_main(main, "speed_render")

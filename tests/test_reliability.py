@@ -1,0 +1,603 @@
+"""Faults injected on purpose: corrupt cache files (bench cells, converted meshes, models), a full
+disk, a motionless demo, broken GL back-ends, worker processes killed with SIGKILL, and sweeps or
+benchmarks killed or terminated. Each test checks the exit code, the one-line message and what is
+left on disk (or in the process table).
+
+The process tests read ``/proc`` (Linux); elsewhere they are skipped.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import lfd
+from lfd.bench.protocol import LasaProtocol
+from lfd.bench.report import write_report
+from lfd.bench.runner import Cell, Failure, WorkerError, load_arrays, run_cells, run_parallel
+from lfd.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+TESTS = str(Path(__file__).resolve().parent)
+PYTHON = sys.executable
+# a cheap protocol: few starts and a tiny grid (the cache logic does not depend on its size)
+SMALL = LasaProtocol(ring_points=1, box_points=2, spurious_grid=2, grid=4, keep_points=10, timing_calls=5)
+TIMINGS = {"cell_s", "train_time_s", "step_time_us", "run_s", "run_cpu_s", "control_step_us", "realtime_factor"}
+SWEEP_ARGS = ["--robots", "planar", "--learners", "node", "--directions", "8", "--forces", "20", "--offsets",
+              "0.05", "--kinds", "push,offset", "--option", "node.iterations=30", "--option", "node.hidden=[16,16]"]
+SWEEP_RUNS = 16
+PROC = Path("/proc")
+needs_proc = pytest.mark.skipif(not (PROC / "self" / "stat").exists(), reason="reads /proc (Linux)")
+
+
+def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
+    """The numbers of a nested record, {path: value}, wall-clock timings left out."""
+    if isinstance(obj, dict):
+        return {k: v for key, val in obj.items() if key not in TIMINGS
+                for k, v in _numbers(val, f"{prefix}/{key}").items()}
+    if isinstance(obj, list):
+        return {k: v for i, val in enumerate(obj) for k, v in _numbers(val, f"{prefix}/{i}").items()}
+    if isinstance(obj, bool) or obj is None:
+        return {prefix: float(bool(obj))} if isinstance(obj, bool) else {}
+    return {prefix: float(obj)} if isinstance(obj, (int, float)) else {}
+
+
+def _no_temporaries(folder: Path) -> None:
+    left = [p.name for p in folder.rglob("*") if ".tmp" in p.name]
+    assert not left, left
+
+
+# ---------------------------------------------------------------- corruptions of a file
+def _truncate(p: Path) -> None:
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+
+
+def _flip(p: Path) -> None:
+    data = bytearray(p.read_bytes())
+    data[len(data) // 2] ^= 0x5A
+    p.write_bytes(bytes(data))
+
+
+def _empty(p: Path) -> None:
+    p.write_bytes(b"")
+
+
+def _garbage(p: Path) -> None:
+    p.write_bytes(b"not a cache file\n" * 8)
+
+
+def _edit_number(p: Path) -> None:
+    """A valid JSON record with one number changed (a number nobody could tell is wrong)."""
+    entry = json.loads(p.read_text())
+    entry["train"]["rmse"] *= 0.5
+    p.write_text(json.dumps(entry, indent=2))
+
+
+CORRUPTIONS: dict[str, Callable[[Path], None]] = {
+    "truncated": _truncate, "flipped": _flip, "empty": _empty, "garbage": _garbage}
+
+
+# ---------------------------------------------------------------- bench cache
+@pytest.fixture(scope="module")
+def bench_clean(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """One DMP cell on the small protocol, computed into a fresh cache."""
+    cache = tmp_path_factory.mktemp("bench_cache")
+    cells = [Cell.make("dmp", "Angle", 0, {}, SMALL)]
+    result = run_cells(cells, cache, progress=False)
+    assert result.computed == ["dmp__Angle__seed0"] and not result.failed
+    return {"cache": cache, "cells": cells, "records": result.records}
+
+
+@pytest.mark.parametrize("kind, target", [("truncated", "npz"), ("flipped", "npz"), ("empty", "npz"),
+                                          ("edited", "json"), ("truncated", "json"), ("missing", "npz")])
+def test_bad_bench_cache_entry_is_recomputed_with_one_warning(bench_clean: dict[str, Any], kind: str, target: str,
+                                                              tmp_path: Path) -> None:
+    cache = tmp_path / "cache"
+    shutil.copytree(bench_clean["cache"], cache)
+    victim = cache / f"dmp__Angle__seed0.{target}"
+    if kind == "missing":
+        victim.unlink()
+    else:
+        (_edit_number if kind == "edited" else CORRUPTIONS[kind])(victim)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = run_cells(bench_clean["cells"], cache, progress=False)
+    said = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert len(said) == 1, said
+    assert said[0].startswith(f"bench cache: {cache / 'dmp__Angle__seed0'}.json: ")
+    assert said[0].endswith("; computing the cell again") and "\n" not in said[0]
+    assert result.computed == ["dmp__Angle__seed0"] and result.cached == []
+    clean, again = bench_clean["records"][0], result.records[0]
+    assert _numbers(again) == _numbers(clean)                 # the same numbers as the clean run
+    assert "checksum" not in again and "npz_sha256" not in again
+    _no_temporaries(cache)
+    with warnings.catch_warnings(record=True) as caught:      # the entry is whole again: used, silently
+        warnings.simplefilter("always")
+        third = run_cells(bench_clean["cells"], cache, progress=False)
+    assert third.cached == ["dmp__Angle__seed0"] and not caught
+    arrays = load_arrays(cache, third.records[0])
+    assert arrays["rollouts"].size > 0
+
+
+def test_entry_of_other_inputs_is_recomputed_silently(bench_clean: dict[str, Any], tmp_path: Path) -> None:
+    """A changed option gives another key: computed without a warning (nothing is wrong)."""
+    cache = tmp_path / "cache"
+    shutil.copytree(bench_clean["cache"], cache)
+    other = [Cell.make("dmp", "Angle", 0, {"n_weights_per_dim": 20}, SMALL)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = run_cells(other, cache, progress=False)
+    assert result.computed == ["dmp__Angle__seed0"] and not caught
+
+
+def test_two_reports_in_one_folder_keep_their_own_figures(bench_clean: dict[str, Any], tmp_path: Path) -> None:
+    records, cache = bench_clean["records"], bench_clean["cache"]
+    run = {"command": "test", "seeds": [0], "workers": 1, "cpus": 1, "wall_s": 1.0, "computed": 1, "cached": 0,
+           "load_start": "0", "load_end": "0"}
+    paths = {}
+    for name in ("quick", "full"):
+        figs = write_report(tmp_path / f"{name}.md", records, ["dmp"], ["Angle"], SMALL.to_dict(), run,
+                            lambda r: load_arrays(cache, r))
+        assert figs == [tmp_path / "figures" / f"{name}_dmp.png"]
+        paths[name] = figs[0]
+    for name, fig in paths.items():
+        assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"![LASA dmp](figures/{name}_dmp.png)" in (tmp_path / f"{name}.md").read_text()
+    assert sorted(p.name for p in (tmp_path / "figures").iterdir()) == ["full_dmp.png", "quick_dmp.png"]
+
+
+@pytest.mark.slow
+def test_bench_command_recomputes_a_truncated_cell_with_one_warning_line(tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """``lfd bench lasa --quick --cache C`` with a truncated cell NPZ: exit 0, one warning line,
+    the JSON written, the same numbers as the clean run."""
+    cache = tmp_path / "C"
+    argv = ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle", "--workers", "1",
+            "--cache", str(cache), "--json", str(tmp_path / "r.json"), "--report", str(tmp_path / "r.md")]
+    assert main(argv) == 0
+    clean = json.loads((tmp_path / "r.json").read_text())["results"]
+    capsys.readouterr()
+    _truncate(cache / "dmp__Angle__seed0.npz")
+    assert main(argv) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("lfd: warning: bench cache: ") and "computing the cell again" in err[0]
+    again = json.loads((tmp_path / "r.json").read_text())
+    assert again["run"]["computed"] == 1
+    assert _numbers(again["results"]) == _numbers(clean)
+
+
+# ---------------------------------------------------------------- mesh cache
+@pytest.fixture
+def mesh_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A small PLY mesh (a box and a sphere) and an empty mesh cache of its own."""
+    trimesh = pytest.importorskip("trimesh")
+    monkeypatch.setenv("LFD_ROBOTS_CACHE", str(tmp_path / "mesh_cache"))
+    mesh = trimesh.util.concatenate([trimesh.creation.box((0.1, 0.1, 0.1)),
+                                     trimesh.creation.icosphere(subdivisions=2, radius=0.05)])
+    path = tmp_path / "part.ply"
+    path.write_bytes(mesh.export(file_type="ply"))
+    return path
+
+
+@pytest.mark.parametrize("kind", sorted(CORRUPTIONS))
+def test_bad_mesh_cache_file_is_rebuilt_with_one_warning(mesh_file: Path, kind: str) -> None:
+    from robots import visual
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        clean = visual.convert_mesh(mesh_file)
+    assert not caught
+    (cached,) = visual.cache_dir().iterdir()
+    good = cached.read_bytes()
+    assert good.startswith(b"PK\x03\x04")                        # an NPZ (a zip archive)
+    CORRUPTIONS[kind](cached)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        again = visual.convert_mesh(mesh_file)
+    said = [str(w.message) for w in caught]
+    assert len(said) == 1 and said[0].startswith(f"robots: mesh cache file {cached} is "), said
+    assert said[0].endswith(f"; converting {mesh_file.name} again")
+    assert again == clean
+    assert cached.read_bytes() == good                       # rebuilt, whole
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert visual.convert_mesh(mesh_file) == clean
+    assert not caught
+    _no_temporaries(visual.cache_dir())
+
+
+def test_mesh_cache_is_fsynced_before_its_rename(mesh_file: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from robots import visual
+
+    calls: list[str] = []
+    fsync, replace = os.fsync, os.replace
+    monkeypatch.setattr(os, "fsync", lambda fd: (calls.append("fsync"), fsync(fd))[1])
+    monkeypatch.setattr(os, "replace", lambda a, b: (calls.append("replace"), replace(a, b))[1])
+    visual.convert_mesh(mesh_file)
+    assert calls[:2] == ["fsync", "replace"]
+
+
+# ---------------------------------------------------------------- model cache, full disk
+@pytest.mark.parametrize("kind", sorted(CORRUPTIONS))
+def test_bad_model_cache_file_is_trained_again_with_one_line(kind: str, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    from lfd.cache import cached_field
+
+    demos = lfd.spiral()
+    field, path, trained = cached_field("tracking", demos, directory=tmp_path)
+    assert trained
+    x0 = demos.x[:, 0]
+    clean = field.rollout(x0, demos.t[0])
+    CORRUPTIONS[kind](path)
+    capsys.readouterr()
+    again, path2, trained = cached_field("tracking", demos, directory=tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert trained and path2 == path
+    assert len(err) == 1 and err[0].startswith(f"cache: {path}: ") and err[0].endswith("; training again"), err
+    np.testing.assert_array_equal(again.rollout(x0, demos.t[0]), clean)
+    reread, _, trained = cached_field("tracking", demos, directory=tmp_path)
+    assert not trained and not capsys.readouterr().err
+    _no_temporaries(tmp_path)
+
+
+class _FullDisk:
+    """A binary file that takes ``room`` bytes, then fails like a full disk (ENOSPC)."""
+
+    def __init__(self, path: str | os.PathLike, mode: str, room: int = 512) -> None:
+        self._f = open(path, mode)  # noqa: SIM115
+        self._room = room
+
+    def write(self, data: Any) -> int:
+        data = bytes(data)
+        if len(data) > self._room:
+            self._f.write(data[: self._room])
+            self._room = 0
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        self._room -= len(data)
+        return self._f.write(data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._f, name)
+
+    def __enter__(self) -> _FullDisk:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._f.close()
+
+
+@pytest.mark.parametrize("learner, options", [("node", ["--iterations", "5", "--hidden", "8"]),
+                                              ("tracking", [])])
+def test_training_onto_a_full_disk_is_one_line_exit_2_and_leaves_no_file(
+        learner: str, options: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    import lfd.io
+
+    out = tmp_path / "out" / "model.pt"
+    monkeypatch.setattr(lfd.io, "open", _FullDisk, raising=False)
+    code = main(["train", "--learner", learner, "--demos", "spiral", "--out", str(out), *options])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"lfd: error: {out}: {os.strerror(errno.ENOSPC)}"], err
+    assert not out.exists() and list(out.parent.iterdir()) == []
+
+
+@pytest.fixture
+def tiny_tmpfs(tmp_path: Path) -> Iterator[Path]:
+    """A 64 KiB tmpfs, nearly full (needs the right to mount: root in a container)."""
+    where = tmp_path / "tmpfs"
+    where.mkdir()
+    if shutil.which("mount") is None or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(where)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        (where / "fill").write_bytes(b"\0" * 60 * 1024)
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], capture_output=True)
+
+
+def test_node_training_onto_a_real_full_disk(tiny_tmpfs: Path) -> None:
+    out = tiny_tmpfs / "m.pt"
+    r = subprocess.run([PYTHON, "-m", "lfd.cli", "train", "--learner", "node", "--demos", "spiral",
+                        "--iterations", "5", "--out", str(out)], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"lfd: error: {out}: {os.strerror(errno.ENOSPC)}"], r.stderr
+    assert sorted(p.name for p in tiny_tmpfs.iterdir()) == ["fill"]
+
+
+# ---------------------------------------------------------------- a motionless demo
+@pytest.mark.parametrize("learner", ["node", "contraction", "tracking"])
+def test_motionless_demo_is_refused_by_every_learner(learner: str, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    demo = tmp_path / "still.csv"
+    demo.write_text("demo,t,x1,x2\n" + "".join(f"0,{k * 0.01:.2f},0.5,0.25\n" for k in range(50)))
+    out = tmp_path / "m.pt"
+    code = main(["train", "--learner", learner, "--demos", str(demo), "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"lfd: error: {demo}: demo 0 does not move (all its 50 samples are at one "
+                                 "point); a demonstration must move to its goal"], err
+    assert not out.exists()
+
+
+def test_motion_check_takes_a_moving_demo() -> None:
+    from lfd.validate import check_motion
+
+    check_motion(lfd.spiral().x)
+    check_motion(np.array([[[1e3, 0.0], [1e3 + 1e-3, 0.0]]]))   # a millimetre-scale move, in mm
+
+
+# ---------------------------------------------------------------- GL back-ends
+_GL_SCRIPT = """
+import sim
+from sim.errors import RenderError
+from sim.gl import require_backend
+print("imported")
+try:
+    require_backend()
+except RenderError as e:
+    print("render error:", e)
+    raise SystemExit(2)
+print("renders")
+"""
+
+
+def _gl_run(env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([PYTHON, "-c", _GL_SCRIPT], capture_output=True, text=True, cwd=ROOT,
+                          env={**os.environ, **env}, timeout=300)
+
+
+@pytest.mark.parametrize("value, message", [
+    ("invalid", "MUJOCO_GL=invalid is not an OpenGL back-end for offscreen rendering; set MUJOCO_GL=egl "
+                "(or osmesa), or unset it"),
+    ("disable", "MUJOCO_GL=disable turns rendering off; unset it or set MUJOCO_GL=egl to render videos "
+                "(or run without videos)"),
+])
+def test_a_bad_gl_value_is_no_error_at_import_and_one_line_before_rendering(value: str, message: str) -> None:
+    r = _gl_run({"MUJOCO_GL": value})
+    assert r.returncode == 2, r.stderr
+    assert r.stdout.splitlines() == ["imported", f"render error: {message}"]
+    assert "Traceback" not in r.stderr
+
+
+def test_osmesa_not_installed_is_no_error_at_import() -> None:
+    from sim.gl import library_found
+
+    if library_found("osmesa"):
+        pytest.skip("libOSMesa is installed here")
+    r = _gl_run({"MUJOCO_GL": "osmesa"})
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stdout.splitlines() == ["imported", "render error: MUJOCO_GL=osmesa: libOSMesa is not installed; "
+                                     "install libosmesa6 (apt install libosmesa6), or unset MUJOCO_GL to "
+                                     "render with EGL"]
+
+
+def test_broken_egl_is_no_error_at_import() -> None:
+    """glvnd's libEGL with no vendor library: as a broken driver (no EGL display can be made)."""
+    from sim.gl import library_found
+
+    if not library_found("egl"):
+        pytest.skip("libEGL is not installed here")
+    r = _gl_run({"MUJOCO_GL": "egl", "__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent.json"})
+    if r.returncode == 0:
+        pytest.skip("this libEGL does not use glvnd vendor files")
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0] == "imported" and len(lines) == 2
+    assert lines[1].startswith("render error: MUJOCO_GL=egl: cannot open an OpenGL context (")
+    assert lines[1].endswith("; install libegl1 (apt install libegl1 libgl1-mesa-dri) with a working driver, "
+                             "or libosmesa6 and set MUJOCO_GL=osmesa")
+
+
+def test_sweep_help_needs_no_gl() -> None:
+    r = subprocess.run([PYTHON, str(ROOT / "scripts" / "sweep_arm.py"), "--help"], capture_output=True, text=True,
+                       env={**os.environ, "MUJOCO_GL": "invalid"}, timeout=300)
+    assert r.returncode == 0 and r.stdout.startswith("usage:") and not r.stderr
+
+
+# ---------------------------------------------------------------- dead workers
+def die_on_first_try(item: tuple[str, int, str]) -> int:
+    """A run that kills its own worker process: ``once`` on its first try (a marker file
+    remembers it), ``always`` on every try; ``fine`` returns at once. Returns 10 x index."""
+    folder, index, mode = item
+    marker = Path(folder) / f"tried{index}"
+    if mode == "always" or (mode == "once" and not marker.exists()):
+        marker.touch()
+        time.sleep(0.3)   # let the other worker take its run
+        os.kill(os.getpid(), signal.SIGKILL)
+    time.sleep(0.3)
+    return 10 * index
+
+
+def test_local_pool_retries_a_killed_run_and_gives_up_after_the_limit(tmp_path: Path) -> None:
+    modes = ["fine", "once", "fine", "always", "fine"]
+    items = [(str(tmp_path), i, m) for i, m in enumerate(modes)]
+    done: dict[int, tuple[int, int]] = {}
+    failed: dict[int, Failure] = {}
+    run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n: done.__setitem__(i, (r, n)),
+                 paths=(TESTS,), on_failed=failed.__setitem__)
+    assert done == {0: (0, 1), 1: (10, 2), 2: (20, 1), 4: (40, 1)}
+    assert failed == {3: Failure("the worker process was killed by SIGKILL", 3)}
+
+
+def test_without_a_failure_callback_a_lost_run_is_a_worker_error_after_the_others(tmp_path: Path) -> None:
+    items = [(str(tmp_path), 0, "always"), (str(tmp_path), 1, "fine")]
+    done: dict[int, Any] = {}
+    with pytest.raises(WorkerError, match=r"^1 run\(s\) lost: a worker process died under each of them 2 times "
+                                          r"\(the worker process was killed by SIGKILL\)$"):
+        run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n: done.__setitem__(i, r), paths=(TESTS,),
+                     max_attempts=2)
+    assert done == {1: 10}
+
+
+@pytest.mark.slow
+def test_ray_retries_a_killed_run(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    items = [(str(tmp_path), 0, "once"), (str(tmp_path), 1, "fine"), (str(tmp_path), 2, "always")]
+    done: dict[int, tuple[int, int]] = {}
+    failed: dict[int, Failure] = {}
+    run_parallel(die_on_first_try, items, 2, "ray", on_done=lambda i, r, n: done.__setitem__(i, (r, n)),
+                 paths=(TESTS,), on_failed=failed.__setitem__, max_attempts=2)
+    assert done == {0: (0, 2), 1: (10, 1)}
+    assert list(failed) == [2] and failed[2].attempts == 2 and "WorkerCrashedError" in failed[2].reason
+
+
+# ---------------------------------------------------------------- killed sweeps and benchmarks
+def _stat(pid: int) -> tuple[str, int] | None:
+    """(state, parent pid) of a process from /proc, None when it is gone."""
+    try:
+        text = (PROC / str(pid) / "stat").read_text()
+    except OSError:
+        return None
+    fields = text[text.rindex(")") + 2:].split()
+    return fields[0], int(fields[1])
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return (PROC / str(pid) / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def _descendants(pid: int) -> list[int]:
+    parents: dict[int, int] = {}
+    for d in PROC.iterdir():
+        if d.name.isdigit() and (s := _stat(int(d.name))) is not None:
+            parents[int(d.name)] = s[1]
+    out, frontier = [], [pid]
+    while frontier:
+        p = frontier.pop()
+        kids = [c for c, pp in parents.items() if pp == p]
+        out += kids
+        frontier += kids
+    return out
+
+
+def _alive(pids: list[int]) -> list[int]:
+    """The processes of ``pids`` still running (a zombie has ended)."""
+    return [p for p in pids if (s := _stat(p)) is not None and s[0] not in ("Z", "X")]
+
+
+def _workers(pid: int) -> list[int]:
+    """Pool workers below ``pid``: children of its forkserver."""
+    procs = _descendants(pid)
+    servers = [p for p in procs if "multiprocessing.forkserver" in _cmdline(p)
+               and (s := _stat(p)) is not None and s[1] == pid]
+    return [p for p in procs if (s := _stat(p)) is not None and s[1] in servers]
+
+
+def _wait_for(check: Callable[[], Any], timeout: float, what: str) -> Any:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        value = check()
+        if value:
+            return value
+        time.sleep(0.2)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _gone_within(pids: list[int], seconds: float) -> list[int]:
+    t0 = time.monotonic()
+    while _alive(pids) and time.monotonic() - t0 < seconds:
+        time.sleep(0.2)
+    return _alive(pids)
+
+
+@pytest.fixture(scope="module")
+def sweep_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """The environment of a sweep subprocess, with its models trained once into a cache of its own."""
+    env = {**os.environ, "LFD_CACHE_DIR": str(tmp_path_factory.mktemp("models")), "PYTHONUNBUFFERED": "1"}
+    out = tmp_path_factory.mktemp("warm")
+    r = subprocess.run([PYTHON, str(ROOT / "scripts" / "sweep_arm.py"), "--out", str(out), "--workers", "1",
+                        "--limit", "1", *SWEEP_ARGS], capture_output=True, text=True, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return env
+
+
+def _start_sweep(out: Path, env: dict[str, str], *extra: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([PYTHON, str(ROOT / "scripts" / "sweep_arm.py"), "--out", str(out), "--workers", "2",
+                             *SWEEP_ARGS, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env)
+
+
+@needs_proc
+def test_sweep_survives_a_killed_worker(sweep_env: dict[str, str], tmp_path: Path) -> None:
+    proc = _start_sweep(tmp_path, sweep_env)
+    try:
+        _wait_for(lambda: list((tmp_path / "runs").glob("*.json")), 300, "the first record")
+        worker = _wait_for(lambda: _workers(proc.pid), 60, "a pool worker")[0]
+        os.kill(worker, signal.SIGKILL)
+        out, err = proc.communicate(timeout=600)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    records = [json.loads(p.read_text()) for p in sorted((tmp_path / "runs").glob("*.json"))]
+    assert len(records) == SWEEP_RUNS and f"{SWEEP_RUNS}/{SWEEP_RUNS} succeeded" in out
+    attempts = sorted(r["attempts"] for r in records)
+    assert attempts[-1] == 2 and attempts[0] == 1, attempts          # the retry is in the records
+    assert all(r["error"] is None and r["metrics"] for r in records)
+    _no_temporaries(tmp_path)
+
+
+@needs_proc
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_killed_sweep_leaves_no_process_behind(sig: signal.Signals, sweep_env: dict[str, str],
+                                               tmp_path: Path) -> None:
+    proc = _start_sweep(tmp_path, sweep_env)
+    try:
+        _wait_for(lambda: len(_workers(proc.pid)) == 2, 300, "two pool workers")
+        children = _descendants(proc.pid)
+        os.kill(proc.pid, sig)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert _gone_within(children, 10.0) == []
+    if sig == signal.SIGTERM:
+        assert proc.returncode == 130 and err.strip().splitlines()[-1] == "sweep_arm: interrupted", err
+    _no_temporaries(tmp_path)
+
+
+@needs_proc
+def test_killed_bench_leaves_no_worker_computing(tmp_path: Path) -> None:
+    proc = subprocess.Popen([PYTHON, "-m", "lfd.cli", "bench", "lasa", "--learner", "dmp", "--quick", "--workers",
+                             "2", "--json", str(tmp_path / "r.json"), "--report", str(tmp_path / "r.md")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        _wait_for(lambda: len(_workers(proc.pid)) == 2, 300, "two pool workers")
+        children = _descendants(proc.pid)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert _gone_within(children, 10.0) == []
+    assert not (tmp_path / "r.json").exists()
+
+
+@needs_proc
+@pytest.mark.slow
+def test_killed_ray_sweep_leaves_no_process_behind(sweep_env: dict[str, str], tmp_path: Path) -> None:
+    """A local Ray instance (raylet, GCS, agents, workers) ends with its driver, kill -9 included."""
+    pytest.importorskip("ray")
+    proc = _start_sweep(tmp_path, sweep_env, "--executor", "ray")
+    try:
+        _wait_for(lambda: list((tmp_path / "runs").glob("*.json")), 300, "the first record")
+        children = _descendants(proc.pid)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert len(children) > 3 and _gone_within(children, 10.0) == []

@@ -23,7 +23,7 @@ cert = certify(field, samples=2_500)                   # a 50 x 50 grid
 print(f"verdict: {cert.verdict} ({cert.proof})")
 print(f"rate {cert.rate} 1/s, overshoot bound sqrt(b/a) = {cert.overshoot:.2f}")
 
-# two starts ten times the demos' extent apart, far outside the training data
+# two starts ten box sizes either side of the goal, far outside the training data
 lo, hi = demos.bounds()
 a, b = demos.goal + 10 * (hi - lo), demos.goal - 10 * (hi - lo)
 t = np.linspace(0.0, 30.0, 601)

@@ -1,32 +1,31 @@
-"""Step 4: put an obstacle near the path; the field bends around it.
+"""Step 4: put an obstacle on the path; the field bends around it.
 
     python examples/04_obstacle.py [OUT]
 
 ``lfd.avoid`` modulates the field around the obstacle (Khansari-Zadeh and Billard's modulation,
-docs/equations.md): a trajectory that starts outside never enters it, and the goal stays the
-attractor. The same obstacle goes into the arm's scene as a MuJoCo geom, and the run reports the
-arm's contacts with it and its smallest clearance.
+docs/equations.md): a trajectory that starts outside never enters it. It protects the tool point
+only, so the obstacle is grown by a margin that clears the hand. The same obstacle goes into the
+arm's scene as a MuJoCo geom, and the run reports the arm's contacts with it and its clearance.
 """
 
 import sys
 
-import numpy as np
-
 import lfd
 import sim
 from lfd.cache import cached_field
+from robots import load_robot
 
 out = sys.argv[1] if len(sys.argv) > 1 else "out/examples"
 demos = lfd.load_demos("lasa:Angle")
 field, _, _ = cached_field("contraction", demos, seed=0)
 
-# a sphere beside the first demo, 40% along it, radius 4% of the demos' extent
-lo, hi = demos.bounds()
-c = demos.x[0, 400] + np.array([0.0, 0.06]) * (hi - lo).max()
-sphere = f"sphere:{c[0]:.2f},{c[1]:.2f},{0.04 * (hi - lo).max():.2f}"
+# a sphere on the first demo, 40% along it, radius 5% of the demos' extent, grown by 25 mm on the arm
+placement = sim.Experiment(load_robot("panda"), demos).placement     # where the job will put the demos
+c, r, margin = demos.x[0, 400], 0.05 * demos.extent, 0.025 / placement.scale   # task units
+sphere = f"sphere:{c[0]:.2f},{c[1]:.2f},{r:.2f};margin={margin:.2f}"
 avoiding = lfd.avoid(field, [sphere])
 path = avoiding.rollout(demos.x[0, 0], demos.t[0] - demos.t[0, 0])   # shape (1000, 2)
-gamma = avoiding.obstacles[0].gamma(path)                            # > 1 outside
+gamma = avoiding.obstacles[0].gamma(path)                            # > 1 outside the grown sphere
 print(f"{sphere}: the field's path stays outside (min gamma {gamma.min():.3f} > 1): {bool(gamma.min() > 1)}")
 
 job = sim.ArmJob(robot="panda", learners=("contraction",), demos="lasa:Angle", scenarios=("none",),

@@ -169,7 +169,7 @@ def _main(argv: Sequence[str] | None) -> int:
     from lfd.threads import torch_threads
 
     # Small networks on a few cores: one intra-op thread is faster and avoids oversubscription
-    # (measured: a spiral rollout 0.37 s on one thread, 3.7-31 s on two under load).
+    # (a second thread makes rollouts many times slower on a loaded machine).
     with torch_threads(1), warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:

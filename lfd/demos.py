@@ -17,6 +17,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from lfd.errors import DemoError
+from lfd.validate import check_motion
 
 MIN_SAMPLES = 10
 MIN_TIME_STEP = 1e-9  # s: finer steps are not a recording of a motion (times scaled by mistake)
@@ -102,6 +103,12 @@ class DemoSet:
         pad = (hi - lo) * grow / 2
         return lo - pad, hi + pad
 
+    @property
+    def extent(self) -> float:
+        """The larger side of the demos' bounding box, user units (docs/glossary.md)."""
+        lo, hi = self.bounds()
+        return float(np.max(hi - lo))
+
 
 def _validate(t: np.ndarray, x: np.ndarray, name: str) -> None:
     if x.ndim != 3:
@@ -142,6 +149,7 @@ def _validate(t: np.ndarray, x: np.ndarray, name: str) -> None:
     if miss.max() > tol:
         raise DemoError(f"{name}: demos do not end near a common goal (demo {int(np.argmax(miss))} "
                         f"ends {miss.max():.3g} from the mean end point, tolerance {tol:.3g})")
+    check_motion(x, name)
 
 
 # ---------------------------------------------------------------- plausibility (warnings, not errors)

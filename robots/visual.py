@@ -187,9 +187,9 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple[np.n
     """Vertex clustering: vertices (V, 3) in one cube of side ``cell`` merge into their mean; faces
     (F, 3) that collapse, and repeated faces, go. Returns (vertices (V', 3), faces (F', 3)).
 
-    CAD meshes carry far more triangles than a frame has pixels for them (the Panda's visuals:
-    137k); a software renderer pays per vertex and per light. A 4 mm grid keeps the silhouette to
-    a pixel at the usual framing and cuts the Panda to about a fifth.
+    CAD meshes carry far more triangles than a frame has pixels for them; a software renderer pays
+    per vertex and per light. A grid of a few millimetres keeps the silhouette to a pixel at the
+    usual framing and removes most of the Panda's triangles.
     """
     if cell <= 0 or len(faces) == 0:
         return vertices, faces

@@ -23,8 +23,6 @@ import sys
 import time
 from typing import Any
 
-import numpy as np
-
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 import matplotlib  # noqa: E402
@@ -63,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     os.makedirs(os.path.join(out, "figures"), exist_ok=True)
     t_start, load0 = time.perf_counter(), os.getloadavg()[0]
     demos = lfd.spiral()
-    extent = float(np.ptp(demos.x.reshape(-1, demos.dim), axis=0).max())
+    extent = demos.extent
     duration = float(demos.t[0, -1] - demos.t[0, 0])
 
     steps = tqdm(total=13, desc="compare", unit="step")

@@ -106,7 +106,7 @@ def spiral_row(kappa: float, rate: float) -> dict[str, Any]:
     starts = np.vstack([corners, rng.uniform(lo, hi, size=(12, 2))])
     tt = np.arange(0.0, 3.0 + 1e-9, 0.002)
     rk4_err = float(np.abs(field.closed_form_rollout(starts, tt) - field.rollout(starts, tt, method="rk4")).max())
-    extent = float((demos.x.max((0, 1)) - demos.x.min((0, 1))).max())
+    extent = demos.extent
     return {"kappa": kappa, "rate": rate, "rmse": rmse, "overshoot": math.sqrt(field.condition_bound),
             "worst_growth": growth, "lipschitz_bound": field.lipschitz_bound,
             "rk4_2ms_error_over_extent": rk4_err / extent,

@@ -44,7 +44,7 @@ def on_path(demos: lfd.DemoSet, fraction: float, radius: float, margin: float) -
     """A sphere of ``radius`` (fraction of the extent) centred on the mean demo at ``fraction`` of its length."""
     x = demos.x.mean(axis=0)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(x, axis=0), axis=1))])
-    extent = float(np.max(np.ptp(demos.x.reshape(-1, demos.dim), axis=0)))
+    extent = demos.extent
     return Sphere(x[np.searchsorted(s, fraction * s[-1])], radius * extent, margin=margin)
 
 
@@ -64,7 +64,7 @@ def main() -> None:
     demos = lfd.spiral()
     robot = load_robot("panda")
     placement = sim.Placement.auto(robot, demos.x)
-    extent = float(np.max(np.ptp(demos.x.reshape(-1, 2), axis=0)))
+    extent = demos.extent
     margin = args.hand_clearance_mm / 1000.0 / placement.scale
     sphere = on_path(demos, args.at, args.radius, margin)
     print(f"sphere: centre {np.round(sphere.center, 3).tolist()} radius {sphere.radius:.3f} units "

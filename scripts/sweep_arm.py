@@ -24,7 +24,7 @@ A run succeeds when it ends within ``--goal-tol`` m of its (shifted) goal withou
 joint limits; a diverged simulation is a failed run (recorded with its error).
 
 A run whose worker process dies (kill -9, out of memory) is tried again
-(``lfd.bench.runner.run_parallel``, up to ``MAX_ATTEMPTS`` tries); its record's ``attempts`` counts
+(``lfd.bench.executor.run_parallel``, up to ``MAX_ATTEMPTS`` tries); its record's ``attempts`` counts
 the tries. A run given up is recorded as failed with the reason and ``lost: true`` (a later sweep
 tries it again); every other run finishes. Ctrl-C or SIGTERM stops the workers and ends with
 ``sweep_arm: interrupted`` and exit code 130; the workers also end when this process is killed.
@@ -188,7 +188,7 @@ def read_record(path: Path, key: str) -> dict[str, Any] | None:
 
 def lost_record(spec: RunSpec, failure: Any) -> dict[str, Any]:
     """The record of a run given up after its worker process died on each try
-    (``lfd.bench.runner.Failure``): failed, with the reason; ``lost`` makes a later sweep retry it."""
+    (``lfd.bench.executor.Failure``): failed, with the reason; ``lost`` makes a later sweep retry it."""
     record: dict[str, Any] = {"key": spec.key(), "name": spec.name, **asdict(spec)}
     record.pop("model_dir")
     record.update(success=False, error=f"given up after {failure.attempts} tries: {failure.reason}",
@@ -202,7 +202,7 @@ def sweep(specs: list[RunSpec], out: Path, workers: int, executor: str, address:
     records in spec order and run info (computed, cached, wall_s, runs_per_s)."""
     from tqdm.auto import tqdm
 
-    from lfd.bench.runner import run_parallel
+    from lfd.bench.executor import run_parallel
     from lfd.io import write_json
 
     runs = out / "runs"
@@ -408,7 +408,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
 
 def check(args: argparse.Namespace) -> None:
     """Validate the options (``ConfigError`` with one line)."""
-    from lfd.bench.runner import check_executor
+    from lfd.bench.executor import check_executor
     from lfd.errors import ConfigError
 
     args.robots = [s.strip() for s in args.robots.split(",") if s.strip()]

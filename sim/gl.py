@@ -5,7 +5,8 @@ MuJoCo and dm_control read ``MUJOCO_GL`` once, at import, and open (dm_control: 
 a broken driver used to end ``import sim`` with a traceback, even for ``--help`` or a run without
 video. ``sim`` calls :func:`select_backend` first thing: it sets the default back-end and imports
 both with rendering off, so that importing ``sim`` never needs a GL back-end, then puts
-``MUJOCO_GL`` back for ``sim.render``, which opens its contexts itself. A value the user set is
+``MUJOCO_GL`` back for ``sim.render``, which opens its contexts itself (dm_control's
+``Physics.render`` picks its back-end at its first call instead). A value the user set is
 always respected. Before simulating a run whose video will be rendered, call
 :func:`require_backend`: a missing or broken back-end is then a ``RenderError`` with one line
 naming what to install or set, before any simulation.
@@ -17,6 +18,8 @@ import ctypes.util
 import importlib
 import os
 import sys
+from collections.abc import Callable
+from typing import Any
 
 # the values sim.render opens a context with; MuJoCo's other names (glx, on, 1, ...) mean GLFW there
 GLFW_NAMES: tuple[str, ...] = ("glfw", "glx", "1", "on", "true", "enable", "enabled")
@@ -65,14 +68,34 @@ def _import_without_gl() -> None:
     try:
         for name in todo:
             try:
-                importlib.import_module(name)
+                module = importlib.import_module(name)
             except ImportError:   # not installed: the import that needs it says so
-                pass
+                continue
+            if name == "dm_control._render" and (saved or "").lower().strip() not in DISABLED:
+                module.Renderer = _deferred_dm_control_renderer(module)  # type: ignore[attr-defined]
     finally:
         if saved is None:
             os.environ.pop("MUJOCO_GL", None)
         else:
             os.environ["MUJOCO_GL"] = saved
+
+
+def _deferred_dm_control_renderer(render: Any) -> Callable[..., Any]:
+    """dm_control's ``Renderer`` (used by ``Physics.render``), chosen at its first call from
+    ``MUJOCO_GL`` as dm_control would have at import; then it replaces itself."""
+    def renderer(*args: Any, **kwargs: Any) -> Any:
+        problem = backend_problem()
+        if problem:
+            raise RuntimeError(problem)
+        name = os.environ.get("MUJOCO_GL", "egl").lower().strip()
+        for names, importer in getattr(render, "_ALL_RENDERERS", ()):
+            if name in names:
+                render.Renderer, render.BACKEND = importer(), names[0]
+                render.USING_GPU = names[0] in ("egl", "glfw")
+                return render.Renderer(*args, **kwargs)
+        raise RuntimeError(f"MUJOCO_GL={name}: dm_control cannot render with it; set MUJOCO_GL=egl")
+
+    return renderer
 
 
 def backend_problem(backend: str | None = None) -> str | None:

@@ -220,7 +220,7 @@ def test_the_path_is_fitted_where_the_timing_cannot_be() -> None:
         field = lfd.train("contraction", demos, seed=0, progress=False)
     ys = [field.closed_form_rollout(demos.x[i, :1], demos.t[i] - demos.t[i, 0])[0] for i in range(demos.n_demos)]
     assert np.mean([dtw(y, x, step=4) for y, x in zip(ys, demos.x)]) < 1000.0
-    extent = float(np.ptp(demos.x.reshape(-1, 2), axis=0).max())
+    extent = demos.extent
     assert max(np.linalg.norm(y[-1] - demos.goal) for y in ys) < 0.1 * extent    # about half of it in practice
 
 
@@ -244,7 +244,7 @@ def test_rk4_at_the_control_step_tracks_the_exact_flow(strong: ContractionField,
     t = np.arange(0.0, 3.0 + 1e-9, 0.002)
     exact = strong.closed_form_rollout(starts, t)
     rk4 = strong.rollout(starts, t, method="rk4")
-    extent = float((spiral.x.max((0, 1)) - spiral.x.min((0, 1))).max())
+    extent = spiral.extent
     assert np.abs(exact - rk4).max() < 1e-3 * extent
 
 

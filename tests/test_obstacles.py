@@ -46,7 +46,7 @@ def on_path_obstacle(demos: lfd.DemoSet, fraction: float = 0.45, radius: float =
         x = field.rollout(x[0], np.linspace(0.0, 3.0 * float(demos.t[0, -1]), 600))
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(x, axis=0), axis=1))])
     c = x[np.searchsorted(s, fraction * s[-1])]
-    extent = float(np.max(np.ptp(demos.x.reshape(-1, demos.dim), axis=0)))
+    extent = demos.extent
     return Sphere(c, radius * extent)
 
 
@@ -199,7 +199,7 @@ def test_obstacle_on_the_demonstrated_path(spec: str) -> None:
     obs = on_path_obstacle(demos, field=field)
     f = avoid(field, [obs])
     starts = seeded_starts(f, demos)
-    extent = float(np.max(np.ptp(demos.x.reshape(-1, demos.dim), axis=0)))
+    extent = demos.extent
     t = np.linspace(0.0, 4.0 * float(demos.t[0, -1]), 401)
     y, gmin = check_avoids_and_converges(f, starts, t, goal_tol=0.01 * extent)
     nominal = field.rollout(starts, t)
@@ -282,7 +282,7 @@ def test_goal_shift_is_reached_without_a_velocity_spike() -> None:
     exceeds the nominal peak plus |A| |dx| plus the blend's 15/8 |dx| / T, and changes smoothly."""
     demos = lfd.load_demos("spiral")
     field = fitted_linear(demos)
-    extent = float(np.max(np.ptp(demos.x.reshape(-1, 2), axis=0)))
+    extent = demos.extent
     dx = np.array([0.2 * extent, 0.0])
     moved = shift_goal(field, 2.5, dx, blend=0.5)
     t = np.linspace(0.0, 14.0, 1401)
@@ -325,7 +325,7 @@ def test_trained_contraction_field_avoids_an_obstacle_on_lasa_angle() -> None:
     field = lfd.train("contraction", demos, seed=0, iterations=100)
     f = avoid(field, [on_path_obstacle(demos)])
     starts = seeded_starts(f, demos)
-    extent = float(np.max(np.ptp(demos.x.reshape(-1, 2), axis=0)))
+    extent = demos.extent
     t = np.linspace(0.0, 4.0 * float(demos.t[0, -1]), 201)
     check_avoids_and_converges(f, starts, t, goal_tol=0.01 * extent)
 

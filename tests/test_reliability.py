@@ -25,9 +25,10 @@ import numpy as np
 import pytest
 
 import lfd
+from lfd.bench.executor import Failure, WorkerError, run_parallel
 from lfd.bench.protocol import LasaProtocol
 from lfd.bench.report import write_report
-from lfd.bench.runner import Cell, Failure, WorkerError, load_arrays, run_cells, run_parallel
+from lfd.bench.runner import Cell, load_arrays, run_cells
 from lfd.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -400,6 +401,21 @@ def test_broken_egl_is_no_error_at_import() -> None:
     assert lines[1].startswith("render error: MUJOCO_GL=egl: cannot open an OpenGL context (")
     assert lines[1].endswith("; install libegl1 (apt install libegl1 libgl1-mesa-dri) with a working driver, "
                              "or libosmesa6 and set MUJOCO_GL=osmesa")
+
+
+def test_dm_control_physics_still_renders_on_first_use() -> None:
+    """dm_control is imported with rendering off; ``Physics.render`` picks the back-end when called."""
+    import sim
+    from sim.errors import RenderError
+    from sim.gl import require_backend
+
+    try:
+        require_backend()
+    except RenderError as e:
+        pytest.skip(str(e))
+    env = sim.make_environment("planar", demos="spiral", learner_field=None, seed=0)
+    image = env.physics.render(48, 64)
+    assert image.shape == (48, 64, 3) and image.std() > 1
 
 
 def test_sweep_help_needs_no_gl() -> None:

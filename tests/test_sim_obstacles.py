@@ -131,7 +131,7 @@ def panda_goal_runs():
 
     demos = lfd.spiral()
     field = sink_field(demos)
-    extent = float(np.max(np.ptp(demos.x.reshape(-1, 2), axis=0)))
+    extent = demos.extent
     dx = 0.2 * extent * np.array([0.6, -0.8])
     moved = shift_goal(field, 1.0, dx, blend=0.5)
     exp = sim.Experiment(load_robot("panda"), demos)

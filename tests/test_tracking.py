@@ -41,7 +41,7 @@ def test_five_starts_converge_faster_at_a_higher_rate(spiral: lfd.DemoSet,
     """The convergence target: 5 starts within 10% of the extent around the true spiral's start reach
     5% of the extent of the true path within 1 s (K = 3) and 5 s (K = 0.5), strong strictly first."""
     true = lfd.spiral(n_demos=1, start_spread=0.0, noise=0.0, n_samples=2000).x[0]
-    extent = float(np.ptp(spiral.x.reshape(-1, 2), axis=0).max())
+    extent = spiral.extent
     rng = np.random.default_rng(0)
     ang, rad = rng.uniform(0, 2 * np.pi, 5), 0.1 * extent * np.sqrt(rng.uniform(0, 1, 5))
     starts = true[0] + rad[:, None] * np.stack([np.cos(ang), np.sin(ang)], 1)

@@ -125,8 +125,9 @@ def parse_options(items: list[str], learners: list[str]) -> dict[str, dict[str, 
 
 def run(args: argparse.Namespace) -> int:
     from lfd.bench import protocol as proto
+    from lfd.bench.executor import check_executor
     from lfd.bench.report import summarize, write_report
-    from lfd.bench.runner import Cell, check_executor, load_arrays, resolve_config, run_cells, write_json
+    from lfd.bench.runner import Cell, load_arrays, resolve_config, run_cells, write_json
     from lfd.errors import ConfigError
 
     if args.seeds < 1 or args.workers < 1:

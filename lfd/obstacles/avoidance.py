@@ -1,7 +1,7 @@
 """Obstacle avoidance for any velocity field by dynamical-system modulation [1]_.
 
 A field f (a ``VelocityField`` or a time-varying field such as ``lfd.goal.MovingGoalField``) is
-wrapped so that trajectories go around obstacles and still reach the goal:
+wrapped so that trajectories go around obstacles, never entering one:
 
 .. math::
 
@@ -13,8 +13,9 @@ direction r = (x - x_ref) / |x - x_ref| ([2]_), its others tangents orthogonal t
 D = diag(1 - 1/Gamma, 1 + 1/Gamma, ...). With f = a r + t (t orthogonal to n) this is
 M f = lambda_r a r + lambda_t t: O(d), no matrix inverse. Several obstacles combine by the weighted
 product of [1]_ (``_kzb_weights``); overlapping ones are merged first (``lfd.obstacles.groups``).
-Preserved (checked in ``tests/test_obstacles.py``): impenetrability, the goal as the attractor
-(no new one), and no tail effect (lambda_r = 1 where f points away). See docs/equations.md.
+Preserved (checked in ``tests/test_obstacles.py``): impenetrability, the goal as an equilibrium,
+and no tail effect (lambda_r = 1 where f points away). Convergence to the goal is proven for a
+linear f only; a field that winds around its goal can gain a limit cycle (docs/equations.md).
 
 References
 ----------

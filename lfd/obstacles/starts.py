@@ -21,9 +21,9 @@ def starts_outside(field: AvoidingField, demos: Any, n: int, seed: int = 0, spre
         Its ``gamma`` (> 1 outside every obstacle) decides what is outside.
     demos : DemoSet
         x of shape (N, T, d); a start is a demo start plus uniform noise of +-spread x the demos'
-        extent per coordinate.
+        bounding box's side per coordinate.
     n, seed, spread : int, int, float
-        How many starts, the numpy seed, the noise's half-width as a fraction of the extent.
+        How many starts, the numpy seed, the noise's half-width as a fraction of the box's sides.
     clearance : float
         Keep only starts with gamma > clearance.
 
@@ -32,10 +32,10 @@ def starts_outside(field: AvoidingField, demos: Any, n: int, seed: int = 0, spre
     array, shape (n, d)
     """
     rng = np.random.default_rng(seed)
-    extent = np.ptp(demos.x.reshape(-1, demos.dim), axis=0)
+    sides = np.ptp(demos.x.reshape(-1, demos.dim), axis=0)       # (d,): the bounding box's sides
     out: list[np.ndarray] = []
     while len(out) < n:
-        x = demos.x[rng.integers(len(demos.x)), 0] + rng.uniform(-spread, spread, demos.dim) * extent
+        x = demos.x[rng.integers(len(demos.x)), 0] + rng.uniform(-spread, spread, demos.dim) * sides
         if field.gamma(x) > clearance:
             out.append(x)
     return np.array(out)

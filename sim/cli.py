@@ -66,19 +66,6 @@ def one_scenario(text: str) -> str:
 
 
 @_type
-def seed(text: str) -> int:
-    from lfd.learners import MAX_SEED
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise ValueError(f"expected an integer, got '{text[:40]}'") from None
-    if not 0 <= value <= MAX_SEED:
-        raise ValueError(f"must be between 0 and 2^63 - 1, got {text[:40]}")
-    return value
-
-
-@_type
 def camera(text: str) -> Any:
     from sim.camera import CameraSpec
 
@@ -127,6 +114,7 @@ def vector3(text: str) -> tuple[float, float, float]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The flags of the arm job (every one an ``ArmJob`` field)."""
+    from lfd import commands as lfd_commands  # the seed rule every command shares
     from robots.loader import ACTUATIONS
 
     p = _Parser(prog="demo_arm.py", description="Run learned velocity fields on a simulated arm in closed "
@@ -139,7 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--demos", default="spiral", help="spiral (default), spiral3d, lasa:NAME or a .csv/.npz file")
     p.add_argument("--perturb", type=scenarios, default=DEFAULT_SCENARIOS, metavar="|".join(SCENARIOS) + "|all",
                    help="perturbation scenario(s): one name, a comma list, or all (default: none,offset,push)")
-    p.add_argument("--seed", type=seed, default=0, help="training and perturbation seed, 0 to 2^63 - 1 (default 0)")
+    p.add_argument("--seed", type=lfd_commands.seed, default=0,
+                   help="training and perturbation seed, 0 to 2^63 - 1 (default 0)")
     p.add_argument("--out", help="output folder (default: a fresh out/demo_arm_YYYYmmdd-HHMMSS)")
     p.add_argument("--overwrite", action="store_true", help="replace a previous run's --out folder")
     p.add_argument("--video", help="video path (one run), or a base name: PATH_<learner>_<scenario>.mp4")

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from records import numbers
 
 import lfd
 from lfd.bench.executor import Failure, WorkerError, run_parallel
@@ -36,24 +37,11 @@ TESTS = str(Path(__file__).resolve().parent)
 PYTHON = sys.executable
 # a cheap protocol: few starts and a tiny grid (the cache logic does not depend on its size)
 SMALL = LasaProtocol(ring_points=1, box_points=2, spurious_grid=2, grid=4, keep_points=10, timing_calls=5)
-TIMINGS = {"cell_s", "train_time_s", "step_time_us", "run_s", "run_cpu_s", "control_step_us", "realtime_factor"}
 SWEEP_ARGS = ["--robots", "planar", "--learners", "node", "--directions", "8", "--forces", "20", "--offsets",
               "0.05", "--kinds", "push,offset", "--option", "node.iterations=30", "--option", "node.hidden=[16,16]"]
 SWEEP_RUNS = 16
 PROC = Path("/proc")
 needs_proc = pytest.mark.skipif(not (PROC / "self" / "stat").exists(), reason="reads /proc (Linux)")
-
-
-def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
-    """The numbers of a nested record, {path: value}, wall-clock timings left out."""
-    if isinstance(obj, dict):
-        return {k: v for key, val in obj.items() if key not in TIMINGS
-                for k, v in _numbers(val, f"{prefix}/{key}").items()}
-    if isinstance(obj, list):
-        return {k: v for i, val in enumerate(obj) for k, v in _numbers(val, f"{prefix}/{i}").items()}
-    if isinstance(obj, bool) or obj is None:
-        return {prefix: float(bool(obj))} if isinstance(obj, bool) else {}
-    return {prefix: float(obj)} if isinstance(obj, (int, float)) else {}
 
 
 def _no_temporaries(folder: Path) -> None:
@@ -123,7 +111,7 @@ def test_bad_bench_cache_entry_is_recomputed_with_one_warning(bench_clean: dict[
     assert said[0].endswith("; computing the cell again") and "\n" not in said[0]
     assert result.computed == ["dmp__Angle__seed0"] and result.cached == []
     clean, again = bench_clean["records"][0], result.records[0]
-    assert _numbers(again) == _numbers(clean)                 # the same numbers as the clean run
+    assert numbers(again) == numbers(clean)                 # the same numbers as the clean run
     assert "checksum" not in again and "npz_sha256" not in again
     _no_temporaries(cache)
     with warnings.catch_warnings(record=True) as caught:      # the entry is whole again: used, silently
@@ -178,7 +166,7 @@ def test_bench_command_recomputes_a_truncated_cell_with_one_warning_line(tmp_pat
     assert len(err) == 1 and err[0].startswith("lfd: warning: bench cache: ") and "computing the cell again" in err[0]
     again = json.loads((tmp_path / "r.json").read_text())
     assert again["run"]["computed"] == 1
-    assert _numbers(again["results"]) == _numbers(clean)
+    assert numbers(again["results"]) == numbers(clean)
 
 
 # ---------------------------------------------------------------- mesh cache

@@ -26,13 +26,13 @@ CHILD = textwrap.dedent("""
 
     phase, argv = sys.argv[1], sys.argv[2:]
     if phase == "save":
-        real_save = torch.save
-        def save(obj, f, *args, **kwargs):
-            real_save(obj, f, *args, **kwargs)
-            f.flush()
+        import os
+        real_fsync = os.fsync
+        def fsync(fd):  # the model file's atomic write: its temporary file is written, not yet renamed
+            real_fsync(fd)
             print("PHASE", file=sys.stderr, flush=True)
             time.sleep(60)
-        torch.save = save
+        os.fsync = fsync
     else:
         real_length = node.segment_length
         said = []
@@ -61,20 +61,19 @@ def test_signal_to_this_process_exits_130_and_leaves_no_file(
         capsys: pytest.CaptureFixture[str]) -> None:
     """Every (signal, phase) pair in-process: ``main`` installs the handlers, the test process sends
     the signal to itself from inside the training loop or from inside the save."""
-    import torch
 
     import lfd.learners.node as node
     from lfd.cli import main
 
     if phase == "save":
-        real_save = torch.save
+        real_fsync = os.fsync
 
-        def save(obj, f, *args, **kwargs):  # type: ignore[no-untyped-def]
-            real_save(obj, f, *args, **kwargs)
+        def fsync(fd: int) -> None:   # the model file's atomic write, before its rename
+            real_fsync(fd)
             assert [p.name for p in out.parent.iterdir()][0].endswith(".tmp")  # mid-save indeed
             os.kill(os.getpid(), sig)
 
-        monkeypatch.setattr(torch, "save", save)
+        monkeypatch.setattr(os, "fsync", fsync)
     else:
         real_length = node.segment_length
 

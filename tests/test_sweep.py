@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from records import numbers
 
 SCRIPTS = str(Path(__file__).resolve().parents[1] / "scripts")
 if SCRIPTS not in sys.path:
@@ -23,7 +24,6 @@ if SCRIPTS not in sys.path:
 
 import sweep_arm  # noqa: E402
 
-TIMINGS = {"run_s", "run_cpu_s", "control_step_us", "realtime_factor"}   # wall-clock numbers: differ run to run
 ARGS = ["--robots", "planar", "--directions", "2", "--forces", "20", "--offsets", "0.05", "--kinds", "push,offset",
         "--option", "node.iterations=30", "--option", "node.hidden=[16,16]", "--option", "contraction.iterations=10",
         "--option", "contraction.layers=1", "--option", "contraction.hidden=8"]
@@ -46,17 +46,6 @@ def local(models: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sweep_local")
     assert sweep_arm.main(["--out", str(out), "--workers", "2", *ARGS]) == 0
     return out
-
-
-def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
-    if isinstance(obj, dict):
-        return {k: v for key, val in obj.items() if key not in TIMINGS
-                for k, v in _numbers(val, f"{prefix}/{key}").items()}
-    if isinstance(obj, list):
-        return {k: v for i, val in enumerate(obj) for k, v in _numbers(val, f"{prefix}/{i}").items()}
-    if isinstance(obj, bool) or obj is None:
-        return {prefix: float(bool(obj))} if isinstance(obj, bool) else {}
-    return {prefix: float(obj)} if isinstance(obj, (int, float)) else {}
 
 
 def _records(out: Path) -> dict[str, dict[str, Any]]:
@@ -97,7 +86,7 @@ def test_ray_executor_gives_the_local_numbers(local: Path, tmp_path: Path) -> No
     a, b = _records(local), _records(tmp_path)
     assert a.keys() == b.keys()
     for name in a:
-        x, y = _numbers(a[name]), _numbers(b[name])
+        x, y = numbers(a[name]), numbers(b[name])
         assert x.keys() == y.keys() and len(x) > 10
         np.testing.assert_allclose([y[k] for k in x], [x[k] for k in x], rtol=1e-6, atol=1e-12, err_msg=name)
     assert (tmp_path / "heatmap.png").is_file()

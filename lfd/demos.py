@@ -17,11 +17,11 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from lfd.errors import DemoError
-from lfd.validate import check_motion
 
 MIN_SAMPLES = 10
 MIN_TIME_STEP = 1e-9  # s: finer steps are not a recording of a motion (times scaled by mistake)
 MAX_DURATION = 1e6    # s (11 days): a longer demo is not a recording of a motion either
+MOTION_TOLERANCE = 1e-9   # a demo whose extent is below this fraction of its coordinates' size does not move
 GOAL_TOLERANCE = 0.05  # end points must lie within this fraction of the data's extent of their mean
 
 LASA_SHAPES: tuple[str, ...] = (
@@ -150,6 +150,36 @@ def _validate(t: np.ndarray, x: np.ndarray, name: str) -> None:
         raise DemoError(f"{name}: demos do not end near a common goal (demo {int(np.argmax(miss))} "
                         f"ends {miss.max():.3g} from the mean end point, tolerance {tol:.3g})")
     check_motion(x, name)
+
+
+def check_motion(x: np.ndarray, name: str = "demos") -> None:
+    """Refuse demonstrations that do not move: ``DemoError`` with one line when a demo's samples
+    are all at one point (its extent, the largest range of a coordinate over its samples, is at
+    most ``MOTION_TOLERANCE`` times the size of its coordinates, or 1 if that is smaller).
+
+    Parameters
+    ----------
+    x : array, shape (N, T, d)
+        The demos' positions.
+    name : str
+        The demos' name, for the message.
+
+    Raises
+    ------
+    DemoError
+        ``<name>: demo <i> does not move (all its <T> samples are at one point); a demonstration
+        must move to its goal``.
+    """
+    pos = np.asarray(x, dtype=np.float64)
+    if pos.ndim != 3 or pos.shape[1] == 0:
+        return
+    with np.errstate(all="ignore"):
+        extent = np.ptp(pos, axis=1).max(axis=-1)                       # (N,)
+        size = np.maximum(np.abs(pos).max(axis=(1, 2)), 1.0)
+    still = np.flatnonzero(extent <= MOTION_TOLERANCE * size)
+    if len(still):
+        raise DemoError(f"{name}: demo {int(still[0])} does not move (all its {pos.shape[1]} samples are "
+                        "at one point); a demonstration must move to its goal")
 
 
 # ---------------------------------------------------------------- plausibility (warnings, not errors)

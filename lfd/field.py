@@ -248,7 +248,7 @@ class VelocityField:
             raise ValueError(f"field expects points of dimension {self.dim}, got shape {x.shape}")
         if x.ndim == 1:
             return cached_single_point_evaluator(self)(x)
-        if x.size <= SMALL_BATCH * self.dim:        # a few points: the single-point path is faster
+        if 0 < x.size <= SMALL_BATCH * self.dim:    # a few points: the single-point path is faster
             fn = cached_single_point_evaluator(self)
             return np.stack([fn(p) for p in x.reshape(-1, self.dim)]).reshape(x.shape)
         with torch.no_grad(), torch_threads(1):   # small batches: one thread is fastest (lfd.threads)

@@ -1,5 +1,4 @@
-"""Checks of option values, shared by the learners' configs and the LASA benchmark protocol, and of
-demonstrations that do not move (``check_motion``).
+"""Checks of option values, shared by the learners' configs and the LASA benchmark protocol.
 
 Each check reads the named attributes of a config object (a dataclass in its ``__post_init__``)
 and raises ``error`` (ValueError unless given; ``Learner.make_config`` turns it into a
@@ -57,40 +56,3 @@ def check_bools(obj: Any, names: Iterable[str]) -> None:
         value = getattr(obj, name)
         if not isinstance(value, bool):
             raise ValueError(f"{name} must be true or false, got {value!r}")
-
-
-MOTION_TOLERANCE = 1e-9   # a demo whose extent is below this fraction of its coordinates' size does not move
-
-
-def check_motion(x: Any, name: str = "demos") -> None:
-    """Refuse demonstrations that do not move: ``DemoError`` with one line when a demo's samples
-    are all at one point (its extent, the largest range of a coordinate over its samples, is at
-    most ``MOTION_TOLERANCE`` times the size of its coordinates, or 1 if that is smaller).
-
-    Parameters
-    ----------
-    x : array_like, shape (N, T, d)
-        The demos' positions.
-    name : str
-        The demos' name, for the message.
-
-    Raises
-    ------
-    DemoError
-        ``<name>: demo <i> does not move (all its <T> samples are at one point); a demonstration
-        must move to its goal``.
-    """
-    import numpy as np
-
-    from lfd.errors import DemoError
-
-    pos = np.asarray(x, dtype=np.float64)
-    if pos.ndim != 3 or pos.shape[1] == 0:
-        return
-    with np.errstate(all="ignore"):
-        extent = np.ptp(pos, axis=1).max(axis=-1)                       # (N,)
-        size = np.maximum(np.abs(pos).max(axis=(1, 2)), 1.0)
-    still = np.flatnonzero(extent <= MOTION_TOLERANCE * size)
-    if len(still):
-        raise DemoError(f"{name}: demo {int(still[0])} does not move (all its {pos.shape[1]} samples are "
-                        "at one point); a demonstration must move to its goal")

@@ -3,25 +3,10 @@
 The actuations a robot can be loaded with are ``robots.loader.ACTUATIONS``.
 """
 
-import os as _os
+from robots.nogl import rendering_off
 
-
-def _import_mujoco_without_gl() -> None:
-    """Import MuJoCo with rendering off (``MUJOCO_GL=disable`` for that import only): MuJoCo picks
-    its GL back-end at import, and a bad or missing one must not stop a robot from loading
-    (``sim.gl`` chooses and checks the back-end where videos are rendered)."""
-    saved = _os.environ.get("MUJOCO_GL")
-    _os.environ["MUJOCO_GL"] = "disable"
-    try:
-        import mujoco  # noqa: F401
-    finally:
-        if saved is None:
-            _os.environ.pop("MUJOCO_GL", None)
-        else:
-            _os.environ["MUJOCO_GL"] = saved
-
-
-_import_mujoco_without_gl()
+with rendering_off():   # MuJoCo picks its GL back-end at import; a robot renders nothing
+    import mujoco  # noqa: F401
 
 from robots.errors import RobotError  # noqa: E402
 from robots.ik import IK_BACKENDS, DifferentialIK, solve_position_ik  # noqa: E402

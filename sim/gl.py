@@ -63,9 +63,9 @@ def _import_without_gl() -> None:
     todo = [name for name in _IMPORTED_WITHOUT_GL if name not in sys.modules]
     if not todo:
         return
-    saved = os.environ.get("MUJOCO_GL")
-    os.environ["MUJOCO_GL"] = "disable"
-    try:
+    from robots.nogl import rendering_off
+
+    with rendering_off() as saved:
         for name in todo:
             try:
                 module = importlib.import_module(name)
@@ -73,11 +73,6 @@ def _import_without_gl() -> None:
                 continue
             if name == "dm_control._render" and (saved or "").lower().strip() not in DISABLED:
                 module.Renderer = _deferred_dm_control_renderer(module)  # type: ignore[attr-defined]
-    finally:
-        if saved is None:
-            os.environ.pop("MUJOCO_GL", None)
-        else:
-            os.environ["MUJOCO_GL"] = saved
 
 
 def _deferred_dm_control_renderer(render: Any) -> Callable[..., Any]:

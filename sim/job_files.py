@@ -112,12 +112,6 @@ class JobFiles:
         v = Path(self.job.video)
         return v if single else v.with_name(f"{v.stem}_{learner}_{name}{v.suffix or '.mp4'}")
 
-    def require_graphics(self) -> None:
-        """Raise ``sim.errors.RenderError`` now, before any work, if no GL back-end can render."""
-        from sim.gl import require_backend
-
-        require_backend()
-
     def write(self, exp: Experiment, results: list[RunResult], side: list[RunResult], grid: list[RunResult],
               fields: dict[str, Field], models: dict[str, dict[str, Any]], t_sim: float, progress: bool,
               settings: dict[str, Any]) -> dict[str, Any]:

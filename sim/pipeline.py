@@ -39,6 +39,7 @@ from sim.camera import CameraSpec
 from sim.controller import Gains
 from sim.errors import PlacementError
 from sim.experiment import SCENARIOS, Experiment, RunResult, scenario
+from sim.gl import require_backend
 from sim.obstacles import obstacle_contacts
 from sim.perturbations import Perturbation, Push
 from sim.placement import Placement
@@ -303,7 +304,7 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
         raise ConfigError(f"the push ends at {job.push.start_s + job.push.duration_s:g} s, after the run "
                           f"({exp.duration_s:g} s)")
     if job.videos:
-        files.require_graphics()
+        require_backend()                              # a missing or broken GL back-end: one line, now
 
     fields: dict[str, Field] = {}
     models: dict[str, dict[str, Any]] = {}

@@ -323,7 +323,7 @@ def test_motionless_demo_is_refused_by_every_learner(learner: str, tmp_path: Pat
 
 
 def test_motion_check_takes_a_moving_demo() -> None:
-    from lfd.validate import check_motion
+    from lfd.demos import check_motion
 
     check_motion(lfd.spiral().x)
     check_motion(np.array([[[1e3, 0.0], [1e3 + 1e-3, 0.0]]]))   # a millimetre-scale move, in mm

@@ -141,12 +141,10 @@ def run(args: argparse.Namespace) -> int:
     from lfd.commands import check_output
     from lfd.demos import demo_warnings, load_demos
     from lfd.learners import train
-    from lfd.validate import check_motion
 
     options = learner_options(args.learner, args)
     check_output(args.out, "--out", {"demo file": args.demos})
     demos = load_demos(args.demos)
-    check_motion(demos.x, demos.name)   # a motionless demo: DemoError, exit 2, for every learner
     for text in demo_warnings(demos):  # shown by lfd.cli as one line "lfd: warning: ..."
         warnings.warn(text, UserWarning, stacklevel=1)
     progress = not args.quiet and sys.stderr.isatty()  # a bar only on a terminal

@@ -2,8 +2,9 @@
 ``scripts/sweep_arm.py``, the benchmarks): train once per (learner, demos, seed, options).
 
 The file is ``<cache_dir>/<learner>-<key>.pt`` with key the first 16 hex digits of
-sha256(JSON of learner, seed, the learner's full config (its defaults filled in) and the sha256
-of the demos' t and x arrays), so a change to any of them, a changed default included, trains a
+sha256(JSON of learner, seed, the learner's full config (its defaults filled in, as
+``lfd.learners.effective_options`` gives them) and the sha256 of the demos' t and x arrays, and q
+for poses), so a change to any of them, a changed default included, trains a
 new model (a change of a learner's code alone does not: delete the cache then). Files are written
 atomically by ``VelocityField.save``; a cached file that cannot be read (corrupt, a failed checksum,
 an old format) is trained again and replaced. An interrupted training is never stored: Ctrl-C
@@ -38,7 +39,12 @@ def cache_key(learner: str, demos: DemoSet, seed: int, options: dict[str, Any]) 
     data = hashlib.sha256()
     data.update(np.ascontiguousarray(demos.t, dtype=np.float64).tobytes())
     data.update(np.ascontiguousarray(demos.x, dtype=np.float64).tobytes())
-    config = dataclasses.asdict(lfd.get_learner(learner).make_config(**options))
+    if demos.q is not None:   # and the chart the pose field is learned in (its goal orientation)
+        data.update(np.ascontiguousarray(demos.q, dtype=np.float64).tobytes())
+        data.update(np.ascontiguousarray(demos.goal_q, dtype=np.float64).tobytes())
+    from lfd.learners import effective_options
+
+    config = dataclasses.asdict(lfd.get_learner(learner).make_config(**effective_options(learner, demos, options)))
     spec = {"learner": learner, "seed": int(seed), "config": config, "demos": data.hexdigest()}
     text = json.dumps(spec, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -7,7 +7,8 @@ M(x), the contraction condition with rate lambda (the paper's Eq. (17), Eq. (C1)
     Eq. (C1): Q(x) = J_f' M + M J_f + dM/dt <= -2 lambda M,   i.e.
     Eq. (K1): g(x) = max eig(L^-1 Q L^-T) <= -2 lambda,   M = L L' (Cholesky),
 
-checked on a grid with J_f and dM/dt from forward-mode autodiff in float64 (nothing is
+checked on a grid (above 3 dimensions, where a grid cannot be dense: the box's corners and seeded
+uniform samples) with J_f and dM/dt from forward-mode autodiff in float64 (nothing is
 finite-differenced), up to the round-off slack of computing Q,
 
     Eq. (K2): slack(x) = SAFETY eps (2 |J_f| |M| + |dM/dt|) / lambda_min(M)   (Frobenius norms).
@@ -50,6 +51,8 @@ IDENTITY_RATE = 0.05       # 1/s: the rate checked for a field without a metric 
 BOX_GROWTH = 0.5           # the default box is the demos' bounding box grown by 50%
 CHUNK = 8192               # points per vectorised evaluation
 MIN_PER_AXIS = 10          # the grid has at least this many points per axis
+GRID_MAX_DIM = 3           # above this dimension the points are the box's corners and uniform samples
+MIN_RANDOM_SAMPLES = 1000  # ... at least this many
 MAX_SAMPLES = 10_000_000
 SAFETY = 1000.0            # Eq. (K2): multiples of eps of the round-off allowance
 RK4_RADIUS = 2.6           # h |mu| <= 2.6 stays in RK4's stability region for every mu with Re mu <= 0
@@ -76,6 +79,8 @@ class Certificate:
         sqrt(b/a), rk4_max_step = RK4_RADIUS / lipschitz_bound (s)
     cell_lipschitz, cell_radius, worst_over_box : the between-samples bound (identity metric)
     box : the requested box; checked_box : the grid's box (it contains the trajectories)
+    pose : for a pose field, ``lfd.pose_contraction.check_pose_contraction`` (pairs of poses, their
+        geodesic distance); a failed check there makes the verdict "not certified"
     n_starts, n_left_box : starts on the box followed, and how many left it
     n_points, per_axis : grid size; n_invalid : points where M, Q or g was not finite, or M not
         numerically positive definite
@@ -112,6 +117,7 @@ class Certificate:
     box: list[list[float]]
     checked_box: list[list[float]]
     elapsed_s: float
+    pose: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -142,6 +148,14 @@ class Certificate:
         if self.n_invalid:
             lines.append(f"  {self.n_invalid} points where the field or its metric is not finite or the "
                          f"metric is not positive definite")
+        if self.pose is not None:
+            p = self.pose
+            state = ("holds" if p["holds"] else "FAILS") if p["checked"] else "not stated (reported only)"
+            lines.append(f"  poses: {p['n_pairs']} pairs followed {p['horizon_s']:.3g} s, starts up to "
+                         f"{p['max_start_angle_deg']:.2f} deg from the goal orientation: the pose-distance bound "
+                         f"{state} (worst ratio {p['worst_ratio']:.3g}, to the goal {p['goal_worst_ratio']:.3g}); "
+                         f"slowest geodesic decay {p['geodesic_decay_rate']:.3g}/s; pairs across the cut locus "
+                         f"separate up to {p['cut_locus_growth']:.3g}x before converging")
         return "\n".join(lines)
 
 
@@ -149,12 +163,22 @@ def _fmt_box(box: list[list[float]]) -> str:
     return " x ".join(f"[{lo:.4g}, {hi:.4g}]" for lo, hi in zip(*box))
 
 
-def grid(lo: np.ndarray, hi: np.ndarray, samples: int) -> np.ndarray:
-    """A regular grid with m = max(MIN_PER_AXIS, ceil(samples^(1/d))) points per axis, corners included.
+def min_samples(d: int) -> int:
+    """The fewest points ``certify`` checks in d dimensions."""
+    return MIN_PER_AXIS ** d if d <= GRID_MAX_DIM else MIN_RANDOM_SAMPLES
 
-    lo, hi : arrays, shape (d,); returns shape (m^d, d).
+
+def grid(lo: np.ndarray, hi: np.ndarray, samples: int) -> np.ndarray:
+    """A regular grid with m = max(MIN_PER_AXIS, ceil(samples^(1/d))) points per axis, corners included;
+    above ``GRID_MAX_DIM`` dimensions the 2^d corners and ``samples`` uniform points (seed 0).
+
+    lo, hi : arrays, shape (d,); returns shape (m^d, d) (or (2^d + samples, d)).
     """
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    d = lo.shape[0]
+    if d > GRID_MAX_DIM:
+        corners = np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), axis=-1).reshape(-1, d)
+        return np.concatenate([corners, np.random.default_rng(0).uniform(lo, hi, size=(samples, d))])
     m = max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / lo.shape[0]) - 1e-9))
     axes = [np.linspace(a, b, m) for a, b in zip(lo, hi)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, lo.shape[0])
@@ -277,8 +301,9 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
                           f"{d}-D model, got {lo.size} and {hi.size}")
     if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (hi > lo).all()):
         raise ConfigError(f"the box must be finite with max > min on every axis, got {lo.tolist()} .. {hi.tolist()}")
-    if isinstance(samples, bool) or not isinstance(samples, int) or not MIN_PER_AXIS ** d <= samples <= MAX_SAMPLES:
-        raise ConfigError(f"samples must be an integer from {MIN_PER_AXIS ** d} ({MIN_PER_AXIS} per axis) "
+    if isinstance(samples, bool) or not isinstance(samples, int) or not min_samples(d) <= samples <= MAX_SAMPLES:
+        per = f" ({MIN_PER_AXIS} per axis)" if d <= GRID_MAX_DIM else ""
+        raise ConfigError(f"samples must be an integer from {min_samples(d)}{per} "
                           f"to {MAX_SAMPLES}, got {samples!r}")
     if rate is None:
         rate = float(getattr(field, "rate", IDENTITY_RATE))
@@ -289,7 +314,18 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
 
     with warnings.catch_warnings():     # torch.func's first use warns that torch.jit.script is deprecated
         warnings.simplefilter("ignore", DeprecationWarning)
-        return _certify(field, lo, hi, samples, float(rate), tolerance)
+        cert = _certify(field, lo, hi, samples, float(rate), tolerance)
+    if field.chart is None:
+        return cert
+    from dataclasses import replace
+
+    from lfd.pose_contraction import check_pose_contraction
+
+    pose = check_pose_contraction(field)
+    if pose["checked"] and not pose["holds"] and cert.certified:
+        return replace(cert, pose=pose, verdict="not certified", certified=False,
+                       proof="a sampled pair of poses breaks the pose-distance bound (a counterexample)")
+    return replace(cert, pose=pose)
 
 
 def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int, rate: float,
@@ -302,7 +338,7 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
     with torch_threads(1):  # small per-point matrices: one thread is as fast and immune to oversubscription
         n_starts, n_left, clo, chi, traj_finite = escaping_starts(field, lo, hi, rate)
         pts = grid(clo, chi, samples)
-        per_axis = max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / d) - 1e-9))
+        per_axis = max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / d) - 1e-9)) if d <= GRID_MAX_DIM else 0
         with np.errstate(all="ignore"):
             xn_all = torch.tensor(field.norm.to_norm(pts))
         bound = -2.0 * rate
@@ -310,7 +346,7 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
     has_metric = hasattr(field, "metric_normalized_torch")
     s2 = field.norm.scale ** 2 if has_metric else 1.0
     analytic = _analytic(field) if has_metric else None
-    cell_radius = float(0.5 * np.linalg.norm((chi - clo) / (per_axis - 1)))
+    cell_radius = float(0.5 * np.linalg.norm((chi - clo) / (per_axis - 1))) if per_axis else math.inf
     cell_lip: float | None = None
     worst_box: float | None = None
     sampled_ok = invalid == 0 and traj_finite and math.isfinite(worst) and excess <= 0
@@ -326,7 +362,7 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
     else:
         jl = getattr(field, "jacobian_lipschitz_bound", None)
         cell_lip = float(jl()) if callable(jl) else None
-        if cell_lip is not None and math.isfinite(cell_lip) and not has_metric:
+        if cell_lip is not None and math.isfinite(cell_lip) and not has_metric and per_axis:
             worst_box = worst + 2.0 * cell_lip * cell_radius
             if worst_box <= bound + tolerance:
                 verdict, proof = "certified", "on the checked box: max over the grid + 2 Lip(J_f) h <= -2 rate"

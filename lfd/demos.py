@@ -1,7 +1,10 @@
-"""Demonstration sets: N demos of T samples in d dimensions, from generators, LASA or files.
+"""Demonstration sets: N demos of T samples in d dimensions, from generators, LASA, RoboTasks9 or files.
 
 A set is validated once, at construction: finite values, at least ``MIN_SAMPLES`` samples,
-strictly increasing times, one dimension, and a common end point (the goal, the attractor).
+strictly increasing times, one dimension, and a common end point (the goal, the attractor). A set
+of poses also holds unit quaternions (w, x, y, z) beside 3-D positions in metres: each near-unit
+quaternion is renormalised, each sequence made continuous (q and -q are one orientation), and the
+demos must end near a common orientation.
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ MIN_TIME_STEP = 1e-9  # s: finer steps are not a recording of a motion (times sc
 MAX_DURATION = 1e6    # s (11 days): a longer demo is not a recording of a motion either
 MOTION_TOLERANCE = 1e-9   # a demo whose extent is below this fraction of its coordinates' size does not move
 GOAL_TOLERANCE = 0.05  # end points must lie within this fraction of the data's extent of their mean
+GOAL_ANGLE_TOLERANCE = 45.0   # degrees: final orientations must lie within this angle of their mean
+MAX_DIM = 32          # task dimensions a demo set may have (2-D and 3-D paths, 6-D pose charts, stacked sets)
 
 LASA_SHAPES: tuple[str, ...] = (
     "Angle", "BendedLine", "CShape", "DoubleBendedLine", "GShape", "heee", "JShape",
@@ -52,13 +57,24 @@ class DemoSet:
     t : array, shape (N, T)     -- times, strictly increasing per demo
     x : array, shape (N, T, d)  -- positions
     name : str                  -- where the demos came from (used in error messages)
+    q : array, shape (N, T, 4), optional -- orientations, unit quaternions (w, x, y, z), for a set
+        of poses (then d = 3, positions in metres); stored renormalised and continuous
+    frame : str, optional       -- the robot frame the poses were recorded in (the arm's tool frame
+        to run them with, unless the user names one)
+    end_tolerance : float       -- end points must lie within this fraction of the extent of their mean
+    goal : array, shape (d,)    -- the mean end point
+    goal_q : array, shape (4,), or None -- the mean final orientation (``lfd.pose.mean_quaternion``)
     """
 
     t: np.ndarray
     x: np.ndarray
     name: str = "demos"
+    q: np.ndarray | None = None
+    frame: str | None = None
+    end_tolerance: float = field(default=GOAL_TOLERANCE, repr=False)
     xd: np.ndarray = field(init=False, repr=False)
     goal: np.ndarray = field(init=False)
+    goal_q: np.ndarray | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=np.float64)
@@ -67,7 +83,11 @@ class DemoSet:
             x = x[None]
         if t.ndim == 1:
             t = np.broadcast_to(t, x.shape[:2]).copy()
-        _validate(t, x, self.name)
+        _validate(t, x, self.name, self.end_tolerance)
+        if self.q is not None:
+            q, goal_q = _orientations(np.asarray(self.q), x.shape, self.name)
+            object.__setattr__(self, "q", q)
+            object.__setattr__(self, "goal_q", goal_q)
         with np.errstate(all="ignore"):
             xd = np.stack([smoothed_velocity(ti, xi) for ti, xi in zip(t, x)])
             speed2 = np.sum(xd * xd, axis=-1)
@@ -79,6 +99,11 @@ class DemoSet:
         object.__setattr__(self, "x", x)
         object.__setattr__(self, "xd", xd)
         object.__setattr__(self, "goal", x[:, -1].mean(axis=0))
+
+    @property
+    def has_orientation(self) -> bool:
+        """Whether the set holds poses (positions and orientations)."""
+        return self.q is not None
 
     @property
     def n_demos(self) -> int:
@@ -95,7 +120,8 @@ class DemoSet:
     def subset(self, idx: list[int] | np.ndarray) -> DemoSet:
         """The demos at indices ``idx`` as a new set."""
         idx = np.asarray(idx, dtype=int)
-        return DemoSet(self.t[idx], self.x[idx], name=self.name)
+        return DemoSet(self.t[idx], self.x[idx], name=self.name, q=None if self.q is None else self.q[idx],
+                       frame=self.frame, end_tolerance=self.end_tolerance)
 
     def bounds(self, grow: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box (lo, hi), each shape (d,), grown by ``grow`` times its size."""
@@ -110,14 +136,14 @@ class DemoSet:
         return float(np.max(hi - lo))
 
 
-def _validate(t: np.ndarray, x: np.ndarray, name: str) -> None:
+def _validate(t: np.ndarray, x: np.ndarray, name: str, end_tolerance: float = GOAL_TOLERANCE) -> None:
     if x.ndim != 3:
         raise DemoError(f"{name}: positions must have shape (N, T, d), got {x.shape}")
     n, T, d = x.shape
     if n == 0:
         raise DemoError(f"{name}: no demonstrations")
-    if d not in (2, 3):
-        raise DemoError(f"{name}: demos must be 2-D or 3-D, got d={d}")
+    if not 2 <= d <= MAX_DIM:
+        raise DemoError(f"{name}: demos must have 2 to {MAX_DIM} dimensions, got d={d}")
     if t.shape != (n, T):
         raise DemoError(f"{name}: times have shape {t.shape}, expected {(n, T)}")
     if T < MIN_SAMPLES:
@@ -145,11 +171,48 @@ def _validate(t: np.ndarray, x: np.ndarray, name: str) -> None:
         raise DemoError(f"{name}: positions out of range (their extent overflows)")
     ends = x[:, -1]
     miss = np.linalg.norm(ends - ends.mean(0), axis=1)
-    tol = GOAL_TOLERANCE * max(extent, 1e-12)
+    tol = end_tolerance * max(extent, 1e-12)
     if miss.max() > tol:
         raise DemoError(f"{name}: demos do not end near a common goal (demo {int(np.argmax(miss))} "
                         f"ends {miss.max():.3g} from the mean end point, tolerance {tol:.3g})")
     check_motion(x, name)
+
+
+def _orientations(q: np.ndarray, shape: tuple[int, ...], name: str) -> tuple[np.ndarray, np.ndarray]:
+    """The validated orientations of a pose set: (q (N, T, 4) renormalised and continuous, the mean
+    final orientation (4,)); ``DemoError`` with one line for anything that is not a rotation."""
+    from lfd.pose import UNIT_TOLERANCE, continuous, geodesic_angle, mean_quaternion, quaternion_matrices
+
+    n, T, d = shape
+    if np.iscomplexobj(q) or q.dtype.kind not in "iuf":
+        raise DemoError(f"{name}: quaternions must hold real numbers, got dtype {q.dtype}")
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape != (n, T, 4):
+        raise DemoError(f"{name}: quaternions have shape {q.shape}, expected {(n, T, 4)} (w, x, y, z)")
+    if d != 3:
+        raise DemoError(f"{name}: poses need 3-D positions, got d={d}")
+    bad = ~np.isfinite(q).all(axis=(1, 2))
+    if bad.any():
+        raise DemoError(f"{name}: NaN or inf in the quaternions of demo {int(np.argmax(bad))}")
+    with np.errstate(all="ignore"):   # a huge quaternion overflows its norm: refused below, silently
+        norm = np.linalg.norm(q, axis=-1)
+        off = np.abs(norm - 1.0)
+    if not np.isfinite(off).all():
+        i, k = np.argwhere(~np.isfinite(off))[0]
+        raise DemoError(f"{name}: quaternion of demo {i} at sample {k} is out of range, not a rotation")
+    if off.max() > UNIT_TOLERANCE:
+        i, k = np.unravel_index(int(np.argmax(off)), off.shape)
+        raise DemoError(f"{name}: quaternion of demo {i} at sample {k} has norm {norm[i, k]:.4g}, not a "
+                        f"rotation (more than {UNIT_TOLERANCE:g} from 1)")
+    # renormalise those not unit to round-off (so a stored set reads back bit for bit)
+    near = off <= 8 * np.finfo(np.float64).eps
+    q = np.stack([continuous(qi) for qi in np.where(near[..., None], q, q / norm[..., None])])
+    goal_q = mean_quaternion(q[:, -1])
+    miss = np.degrees(geodesic_angle(quaternion_matrices(goal_q), quaternion_matrices(q[:, -1])))
+    if miss.max() > GOAL_ANGLE_TOLERANCE:
+        raise DemoError(f"{name}: demos do not end near a common orientation (demo {int(np.argmax(miss))} "
+                        f"ends {miss.max():.1f} deg from the mean, tolerance {GOAL_ANGLE_TOLERANCE:g} deg)")
+    return q, goal_q
 
 
 def check_motion(x: np.ndarray, name: str = "demos") -> None:
@@ -306,12 +369,53 @@ def lasa(shape: str) -> DemoSet:
     return DemoSet(t, x, name=f"lasa:{shape}")
 
 
+ROBOTTASKS: tuple[str, ...] = ("bottle2shelf", "matfolding", "obstaclerotate", "openbox", "pan2stove",
+                                "platestandingtolying", "pouring", "scoop", "wineglass")
+ROBOTTASKS_RATE_HZ = 60.0
+
+
+def robottasks(task: str) -> DemoSet:
+    """One RoboTasks9 task: 9 kinesthetic demos of 1000 poses recorded at 60 Hz on a Franka Emika
+    Panda, positions in metres in the robot's base frame, orientations (w, x, y, z).
+
+    Read from the copy shipped in ``assets/robottasks`` (MIT licence, ``assets/robottasks/README.md``);
+    the files hold centimetres, which this divides by 100. x has shape (9, 1000, 3), q (9, 1000, 4).
+    The poses are those of the hand's tool point (``panda_hand_tcp``, the Panda's default tool frame):
+    the matfolding demos then slide the fingertips 5 cm above the table, as folding a mat does (with the
+    flange they would be under it); a few samples of openbox and pan2stove lie just beyond the arm's
+    reach in that frame (reports/robottasks.md).
+
+    References
+    ----------
+    Auddy, S., Hollenstein, J., Saveriano, M., Rodriguez-Sanchez, A., Piater, J. (2023). Scalable and
+    efficient continual learning from demonstration via a hypernetwork-generated stable dynamics
+    model. arXiv:2311.03600
+    """
+    if task not in ROBOTTASKS:
+        raise DemoError(f"robottasks:{task}: unknown task; known: {', '.join(ROBOTTASKS)}")
+    path = Path(__file__).resolve().parent / "assets" / "robottasks" / f"{task}.npy"
+    try:
+        a = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise DemoError(f"robottasks:{task}: cannot read the shipped data {path} ({e})") from None
+    if a.ndim != 3 or a.shape[2] != 7:
+        raise DemoError(f"robottasks:{task}: the shipped data {path} has shape {a.shape}, expected (N, T, 7)")
+    t = np.arange(a.shape[1]) / ROBOTTASKS_RATE_HZ
+    return DemoSet(np.broadcast_to(t, a.shape[:2]).copy(), a[..., :3] / 100.0, name=f"robottasks:{task}",
+                   q=a[..., 3:])
+
+
 # ---------------------------------------------------------------- files
 
 def load_file(path: str | os.PathLike) -> DemoSet:
-    """Read demos from a CSV (columns ``demo,t,x1..xd``) or NPZ (``t`` (T,) or (N,T), ``x`` (N,T,d)).
+    """Read demos from a CSV or an NPZ file.
 
-    Demos of different lengths in a CSV are resampled, linearly in time, to the longest length.
+    - CSV, positions: columns ``demo,t,x1..xd``; poses: ``demo,t,x,y,z,qw,qx,qy,qz`` (metres, the
+      robot's base frame; the header decides).
+    - NPZ: ``t`` (T,) or (N, T), ``x`` (N, T, d), and for poses ``q`` (N, T, 4), w first.
+
+    Demos of different lengths in a CSV are resampled in time to the longest length: positions
+    linearly, orientations by spherical interpolation (SciPy's ``Slerp``).
     """
     p = Path(path)
     name = str(path)
@@ -352,6 +456,7 @@ def _load_npz(p: Path, name: str) -> DemoSet:
         if missing:
             raise DemoError(f"{name}: missing array(s) {', '.join(sorted(missing))} (need t and x)")
         t, x = _real_array(z["t"], "t", name), _real_array(z["x"], "x", name)
+        q = _real_array(z["q"], "q", name) if "q" in z.files else None
     if x.ndim != 3:
         raise DemoError(f"{name}: x must have shape (N, T, d), got {x.shape}")
     if t.ndim == 1:
@@ -360,7 +465,10 @@ def _load_npz(p: Path, name: str) -> DemoSet:
         t = np.broadcast_to(t, x.shape[:2])
     elif t.shape != x.shape[:2]:
         raise DemoError(f"{name}: t must have shape (T,) or {x.shape[:2]}, got {t.shape}")
-    return DemoSet(t, x, name=name)
+    return DemoSet(t, x, name=name, q=q)
+
+
+POSE_HEADER = ["demo", "t", "x", "y", "z", "qw", "qx", "qy", "qz"]
 
 
 def _load_csv(p: Path, name: str) -> DemoSet:
@@ -370,8 +478,10 @@ def _load_csv(p: Path, name: str) -> DemoSet:
         raise DemoError(f"{name}: empty file")
     header = [h.strip() for h in rows[0]]
     d = len(header) - 2
-    if header[:2] != ["demo", "t"] or header[2:] != [f"x{i + 1}" for i in range(d)] or d < 1:
-        raise DemoError(f"{name}: header must be demo,t,x1..xd, got {','.join(header)}")
+    pose = header == POSE_HEADER
+    if not pose and (header[:2] != ["demo", "t"] or header[2:] != [f"x{i + 1}" for i in range(d)] or d < 1):
+        raise DemoError(f"{name}: header must be demo,t,x1..xd or {','.join(POSE_HEADER)}, "
+                        f"got {','.join(header)}")
     demos: dict[str, list[list[float]]] = {}
     for line, row in enumerate(rows[1:], start=2):
         if not row or all(not c.strip() for c in row):
@@ -386,25 +496,49 @@ def _load_csv(p: Path, name: str) -> DemoSet:
     if not demos:
         raise DemoError(f"{name}: no samples")
     arrays = [np.asarray(v) for v in demos.values()]
-    T = max(len(a) for a in arrays)
     if min(len(a) for a in arrays) < MIN_SAMPLES:
         raise DemoError(f"{name}: a demo has {min(len(a) for a in arrays)} samples, "
                         f"at least {MIN_SAMPLES} are needed")
-    ts: list[np.ndarray] = []
-    xs: list[np.ndarray] = []
-    for a in arrays:
-        t, x = a[:, 0], a[:, 1:]
+    for i, a in enumerate(arrays):
         if not np.isfinite(a).all():
-            raise DemoError(f"{name}: NaN or inf in demo {len(ts)}")
-        if (np.diff(t) <= 0).any():
-            raise DemoError(f"{name}: time is not increasing in demo {len(ts)}")
+            raise DemoError(f"{name}: NaN or inf in demo {i}")
+        if (np.diff(a[:, 0]) <= 0).any():
+            raise DemoError(f"{name}: time is not increasing in demo {i}")
+    if pose:
+        t, x, q = resample([a[:, 0] for a in arrays], [a[:, 1:4] for a in arrays], [a[:, 4:] for a in arrays],
+                           name)
+        return DemoSet(t, x, name=name, q=q)
+    t, x, _ = resample([a[:, 0] for a in arrays], [a[:, 1:] for a in arrays], None, name)
+    return DemoSet(t, x, name=name)
+
+
+def resample(ts: list[np.ndarray], xs: list[np.ndarray], qs: list[np.ndarray] | None, name: str
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Demos of different lengths on one length, the longest T: each demo's times (T_i,), positions
+    (T_i, d) and quaternions (T_i, 4) (or None), uniformly resampled over its own time span, positions
+    linearly, orientations by Slerp; a demo already of length T is kept as it is (bit for bit).
+    Returns t (N, T), x (N, T, d), q (N, T, 4) or None."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    T = max(len(t) for t in ts)
+    to, xo, qo = [], [], []
+    for i, (t, x) in enumerate(zip(ts, xs)):
+        q = None if qs is None else qs[i]
         if len(t) != T:
             tn = np.linspace(t[0], t[-1], T)
-            x = np.stack([np.interp(tn, t, x[:, j]) for j in range(d)], axis=1)
+            x = np.stack([np.interp(tn, t, x[:, j]) for j in range(x.shape[1])], axis=1)
+            if q is not None:
+                norm = np.linalg.norm(q, axis=1)
+                if not np.all(norm > 0):
+                    raise DemoError(f"{name}: a quaternion of demo {i} is zero")
+                rot = Rotation.from_quat(q / norm[:, None], scalar_first=True)
+                q = Slerp(t, rot)(tn).as_quat(scalar_first=True)
             t = tn
-        ts.append(t)
-        xs.append(x)
-    return DemoSet(np.stack(ts), np.stack(xs), name=name)
+        to.append(t)
+        xo.append(x)
+        if q is not None:
+            qo.append(q)
+    return np.stack(to), np.stack(xo), (np.stack(qo) if qs is not None else None)
 
 
 def save_file(demos: DemoSet, path: str | os.PathLike) -> None:
@@ -414,13 +548,18 @@ def save_file(demos: DemoSet, path: str | os.PathLike) -> None:
     p = Path(path)
     if p.suffix.lower() == ".npz":
         def write(f: BinaryIO) -> None:
-            np.savez(f, t=demos.t, x=demos.x)
+            if demos.q is None:
+                np.savez(f, t=demos.t, x=demos.x)
+            else:
+                np.savez(f, t=demos.t, x=demos.x, q=demos.q)
     elif p.suffix.lower() == ".csv":
         def write(f: BinaryIO) -> None:
-            lines = ["demo,t," + ",".join(f"x{j + 1}" for j in range(demos.dim))]
+            pose = demos.q is not None
+            lines = [",".join(POSE_HEADER) if pose else "demo,t," + ",".join(f"x{j + 1}" for j in range(demos.dim))]
+            values = np.concatenate([demos.x, demos.q], axis=-1) if demos.q is not None else demos.x
             for i in range(demos.n_demos):
                 for k in range(demos.n_samples):
-                    lines.append(f"{i},{float(demos.t[i, k])!r}," + ",".join(repr(float(v)) for v in demos.x[i, k]))
+                    lines.append(f"{i},{float(demos.t[i, k])!r}," + ",".join(repr(float(v)) for v in values[i, k]))
             f.write(("\n".join(lines) + "\n").encode())
     else:
         raise DemoError(f"{path}: unknown demo file type (use .csv or .npz)")
@@ -428,13 +567,25 @@ def save_file(demos: DemoSet, path: str | os.PathLike) -> None:
 
 
 def load_demos(spec: str) -> DemoSet:
-    """Resolve a demo SPEC: ``spiral``, ``spiral3d``, ``lasa:NAME`` or a file path."""
+    """Resolve a demo SPEC: ``spiral``, ``spiral3d``, ``lasa:NAME``, ``robottasks:TASK``,
+    ``bag:PATH:/topic[:PARENT:CHILD]`` (``lfd.bags``) or a file path."""
     if spec == "spiral":
         return spiral()
     if spec == "spiral3d":
         return spiral3d()
     if spec.startswith("lasa:"):
         return lasa(spec.split(":", 1)[1])
+    if spec.startswith("robottasks:"):
+        task = spec.split(":", 1)[1]
+        if task == "all":
+            raise DemoError("robottasks:all: the nine tasks are nine demo sets with their own goals; "
+                            "give one task (robottasks:TASK), or use lfd bench robottasks")
+        return robottasks(task)
+    if spec.startswith("bag:"):
+        from lfd.bags import load_bag
+
+        return load_bag(spec)
     if spec.endswith((".csv", ".npz", ".CSV", ".NPZ")) or os.path.sep in spec or Path(spec).exists():
         return load_file(spec)
-    raise DemoError(f"{spec}: unknown demo spec (use spiral, spiral3d, lasa:NAME or a .csv/.npz file)")
+    raise DemoError(f"{spec}: unknown demo spec (use spiral, spiral3d, lasa:NAME, robottasks:TASK, "
+                    "bag:FILE:/topic or a .csv/.npz file)")

@@ -14,7 +14,11 @@ never the field's attributes:
 - ``FieldKind.PHASED``: (dx/dt, ds/dt) = f(x, s) with a phase s in [0, 1] carried beside x (the
   tracking learner, ``lfd.learners.tracking``; ``PhasedField``).
 
-``StateSpace.POSITION`` is R^d, positions only.
+``StateSpace.POSITION`` is R^d, positions only. ``StateSpace.POSE`` is position and orientation,
+R^3 x SO(3), learned in the log chart at the goal orientation (``lfd.pose``, Eqs. (P1)-(P4) of
+docs/equations.md): such a field is the same learner's field on the chart's R^6, and carries its
+``PoseChart`` (``Field.chart``). Its x are chart points z = (p, l log(R_g^T R)) and its output
+z_dot; ``pose_velocity`` turns a pose into the linear and angular velocity, Eq. (P3).
 """
 
 from __future__ import annotations
@@ -26,11 +30,13 @@ from collections.abc import Callable
 from typing import Any, ClassVar, Protocol, TypeGuard
 
 import numpy as np
+import pinocchio as pin
 import torch
 from torch import Tensor
 
 from lfd import integrate
 from lfd.normalization import Normalization
+from lfd.pose import PoseChart
 from lfd.threads import torch_threads
 
 #: batches of up to this many points are evaluated point by point (``VelocityField.__call__``)
@@ -49,6 +55,7 @@ class StateSpace(enum.Enum):
     """The space a field's state x lives in."""
 
     POSITION = "position"   #: R^d, task units
+    POSE = "pose"           #: R^3 x SO(3), as chart points of R^6 (``lfd.pose``)
 
 
 class Field(Protocol):
@@ -98,6 +105,11 @@ class Field(Protocol):
     @property
     def demo_box(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(lo, hi), each shape (d,): the training demos' bounding box, or None."""
+        ...
+
+    @property
+    def chart(self) -> PoseChart | None:
+        """The orientation chart of a ``StateSpace.POSE`` field (None on positions)."""
         ...
 
     def goal_at(self, t: float) -> np.ndarray:
@@ -176,14 +188,16 @@ class VelocityField:
     demo_box : pair of arrays, each shape (d,), optional
         (lo, hi), the bounding box of the training demos, user units; None when unknown (a field
         built by hand). ``lfd certify`` and ``lfd export --format npz-grid`` default to it, grown.
+    chart : PoseChart, optional
+        The orientation chart of a pose field (then d = 6: x are chart points, module docstring).
     """
 
     kind: ClassVar[FieldKind] = FieldKind.AUTONOMOUS
-    space: ClassVar[StateSpace] = StateSpace.POSITION
 
     def __init__(self, module: torch.nn.Module, norm: Normalization, learner: str,
                  config: dict[str, Any], history: dict[str, Any] | None = None,
-                 demo_box: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 demo_box: tuple[np.ndarray, np.ndarray] | None = None, chart: PoseChart | None = None) -> None:
+        self.chart = chart
         self.module = module.double().eval()
         self.norm = norm
         self.learner = learner
@@ -198,6 +212,23 @@ class VelocityField:
             self.demo_box = (lo, hi)
         for p in self.module.parameters():
             p.requires_grad_(False)
+        if chart is not None and self.dim != 6:
+            raise ValueError(f"a pose field has 6 chart coordinates, got d={self.dim}")
+
+    @property
+    def space(self) -> StateSpace:
+        """``StateSpace.POSE`` with a chart, else ``StateSpace.POSITION``."""
+        return StateSpace.POSITION if self.chart is None else StateSpace.POSE
+
+    def pose_velocity(self, x: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """The twist (v [m/s], omega [rad/s], world axes), shape (6,), of a pose field at the pose
+        x (3,), q (4,) (w, x, y, z): Eq. (P1), the field, then Eq. (P3)."""
+        if self.chart is None:
+            raise ValueError("pose_velocity needs a pose field (a field trained on poses)")
+        qa = np.asarray(q, dtype=np.float64)
+        rot = pin.Quaternion(float(qa[0]), float(qa[1]), float(qa[2]), float(qa[3])).normalized().toRotationMatrix()
+        z = self.chart.point(np.asarray(x, dtype=np.float64), rot)
+        return self.chart.twist(z, cached_single_point_evaluator(self)(z))
 
     @property
     def dim(self) -> int:
@@ -321,6 +352,8 @@ class VelocityField:
         }
         if self.demo_box is not None:
             payload["demo_box"] = [c.tolist() for c in self.demo_box]
+        if self.chart is not None:
+            payload["pose_chart"] = self.chart.to_dict()
         save_payload(payload, path)
 
     def __repr__(self) -> str:
@@ -385,6 +418,11 @@ class FieldWrapper:
     def dim(self) -> int:
         """The task dimension d."""
         return int(self.field.dim)
+
+    @property
+    def chart(self) -> PoseChart | None:
+        """The wrapped field's orientation chart."""
+        return self.field.chart
 
     @property
     def learner(self) -> str:

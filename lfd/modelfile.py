@@ -2,9 +2,10 @@
 
 A model file is a ``torch.save`` of a plain dict (strings, numbers, lists, tensors):
 ``{"format_version", "learner", "dim", "config", "normalization", "state_dict", "history",
-"demo_box", "checksum"}`` (``history`` and ``demo_box``, the training demos' bounding box
-[lo, hi], are optional). It is read back with ``torch.load(..., weights_only=True)``, which refuses
-pickled code. ``checksum`` is the sha256 of every other entry (``payload_checksum``): the tensors' dtype,
+"demo_box", "pose_chart", "checksum"}`` (``history``, ``demo_box``, the training demos' bounding box
+[lo, hi], and ``pose_chart``, a pose field's ``lfd.pose.PoseChart``, are optional). It is read back
+with ``torch.load(..., weights_only=True)``, which refuses pickled code. ``checksum`` is the sha256
+of every other entry (``payload_checksum``): the tensors' dtype,
 shape and bytes in key order, and the canonical JSON of the rest, so one flipped byte anywhere
 in the payload is a ``ModelError`` on load, never a silently different field. Weights must be
 finite. Files of format 1 (no checksum) are refused: train the model again. Older spellings
@@ -142,14 +143,16 @@ def _check_contents(payload: dict[str, Any], path: str, allow_nonfinite: bool = 
     """Types and values of a checksummed payload (a crafted file can carry a valid checksum)."""
     import torch
 
+    from lfd.demos import MAX_DIM
+
     def bad(what: str) -> ModelError:
         return ModelError(f"{path}: not a valid model file ({what})")
 
     if not isinstance(payload["learner"], str):
         raise bad("learner is not a name")
     dim = payload["dim"]
-    if not isinstance(dim, int) or isinstance(dim, bool) or dim not in (2, 3):
-        raise bad("dim must be 2 or 3")
+    if not isinstance(dim, int) or isinstance(dim, bool) or not 2 <= dim <= MAX_DIM:
+        raise bad(f"dim must be an integer from 2 to {MAX_DIM}")
     if not isinstance(payload["config"], dict) or not all(isinstance(k, str) for k in payload["config"]):
         raise bad("config is not a dict of options")
     state = payload["state_dict"]
@@ -185,6 +188,16 @@ def _check_contents(payload: dict[str, Any], path: str, allow_nonfinite: bool = 
             ok = False
         if not ok:
             raise bad(f"demo_box must be two corners of {dim} finite numbers")
+    chart = payload.get("pose_chart")
+    if chart is not None:
+        from lfd.pose import PoseChart
+
+        if dim != 6 or not isinstance(chart, dict):
+            raise bad("a pose chart needs a 6-D model")
+        try:
+            PoseChart.from_dict(chart)
+        except (TypeError, KeyError, ValueError) as e:
+            raise bad(str(e).splitlines()[0][:120]) from None
 
 
 def _load_reason(e: BaseException) -> str:

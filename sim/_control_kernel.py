@@ -20,10 +20,16 @@ from sim._kernel_layout import HEADER
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
 def _linear_twist(v: np.ndarray, p: np.ndarray, prm: np.ndarray, d: int, tw: np.ndarray
                   ) -> None:  # pragma: no cover - compiled
-    """tw[:3] = s A v - k_n n (n . p - n . o) (the second term on a task plane only); tw[3:] = 0.
+    """tw[:3] = s A v - k_n n (n . p - n . o) (the second term on a task plane only); tw[3:] = 0;
+    a pose task (prm[15] set): tw = v, the world twist the controller computed.
 
-    v : (d,) task velocity; p : (3,) tool position; prm : the parameter vector; tw : (6,) output.
+    v : (d,) task velocity (a pose task: (6,) twist); p : (3,) tool position; prm : the parameter
+    vector; tw : (6,) output.
     """
+    if prm[15] != 0.0:
+        for i in range(6):
+            tw[i] = v[i]
+        return
     o = HEADER
     for i in range(3):
         acc = 0.0

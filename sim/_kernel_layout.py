@@ -5,7 +5,7 @@ both import ``HEADER`` from here, so the import runs one way (neither module imp
 load time, and ``import sim`` never imports numba).
 
 Layout of ``prm``: ``HEADER`` scalars (plane?, spatial?, n . o, k_r, eps^2, fast speed^2, c_ref, 1/dt,
-k_d, posture gain, torque?, d, n, nv, m; one spare), then R_ref (9), k_n n (3), n (3), s A (3 d), then
+k_d, posture gain, torque?, d, n, nv, m, pose?), then R_ref (9), k_n n (3), n (3), s A (3 d), then
 q_home, mid, fast_half, damping, lead, dof address (n each): shape (HEADER + 15 + 3 d + 6 n,).
 """
 

@@ -159,6 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="recorded: 3-D demos where they were recorded, metres in the robot's base frame")
     g.add_argument("--origin", type=vector3, metavar="X,Y,Z", help="world position (m) of the demos' box centre")
     g.add_argument("--scale", type=float, metavar="M_PER_UNIT", help="metres per demo unit (overrides --size-m)")
+    g.add_argument("--shift", type=vector3, metavar="DX,DY,DZ",
+                   help="demos of poses (which run where recorded): translate them by this, m")
     g = p.add_argument_group("the push scenario (default: 20 N for 0.2 s at t = 1 s, seeded direction)")
     g.add_argument("--push-force", type=float, default=20.0, metavar="N", help="force in newtons")
     g.add_argument("--push-start", type=float, default=1.0, metavar="S", help="start time in seconds")
@@ -186,7 +188,7 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
         video=args.video, videos=not args.no_video, plots=not args.no_plots, camera=args.camera, size=args.size,
         fps=args.fps, side_by_side=args.side_by_side, grid=args.grid, table=args.table, ik=args.ik,
         actuation=args.actuation, plane=args.plane, size_m=args.size_m, placement=args.placement,
-        origin=args.origin, scale=args.scale,
+        origin=args.origin, scale=args.scale, shift=args.shift,
         push=PushSpec(args.push_force, args.push_start, args.push_duration, args.push_direction),
         obstacles=tuple(args.obstacle), goal_shift=args.goal_shift, goal_path=args.goal_path,
         control_hz=args.control_hz, iters=args.iters, quiet=args.quiet, command=tuple(command))

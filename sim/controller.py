@@ -5,6 +5,12 @@ Twist (world axes, LOCAL_WORLD_ALIGNED, rows vx vy vz wx wy wz) from a task velo
     v_lin = s A v - k_n n n^T (p - o)         (second term: 2-D task on a spatial arm; holds p on the plane)
     w     = k_r log(R_ref R^T)                (spatial arm: holds the tool orientation R at R_ref)
 
+A pose task (``Placement.pose``, d = 6) instead gives the whole twist from the field: its task point
+is the chart point z = (A^T (p - o) / s, l log(R_g^T A^T R)) of the measured pose (``lfd.pose``, Eq. (P1)),
+and its command z_dot turns into v_lin = s A z_dot[:3] and w = A omega, omega of Eq. (P3). The DLS then
+solves all six rows with unit weights (1 m/s against 1 rad/s); a 7-joint arm meets a 6-D twist exactly
+away from singularities, so the weights act only where the damping does.
+
 qdot = IK(q, twist) (``robots.DifferentialIK``), then the actuator command:
 
 * ``position`` servos (MuJoCo tau = kp (u - q) - kv qdot + gravity compensation), with
@@ -132,7 +138,12 @@ class FieldController:
         self._sA = np.ascontiguousarray(placement.scale * placement.axes)        # (3, d)
         self._At_s = np.ascontiguousarray(placement.axes.T / placement.scale)     # (d, 3)
         self._plane = placement.dim == 2 and not self.robot.planar
-        self._spatial = not self.robot.planar
+        self._chart = placement.chart
+        self._pose = placement.chart is not None
+        self._spatial = not self.robot.planar and not self._pose     # holds R at R_ref
+        self._rot_t = np.ascontiguousarray(placement.rotation.T)
+        self._rot = np.ascontiguousarray(placement.rotation)
+        self._z = np.zeros(6)
         self._kn_n = gains.plane * placement.normal
         self._normal = placement.normal.copy()
         self._n_o = float(placement.normal @ placement.origin)
@@ -185,10 +196,12 @@ class FieldController:
         n, d = self.robot.n, self.placement.dim
         torque = self.actuation == "torque"
         head = np.zeros(_HEADER)
-        head[:15] = (float(self._plane), float(self._spatial), self._n_o, self._kr, fp["eps2"],
+        if self._pose:
+            d = 3   # the kernel takes the world twist (6,) as its v (``fast_command``), and sA is 3 x 3
+        head[:16] = (float(self._plane), float(self._spatial), self._n_o, self._kr, fp["eps2"],
                      fp["fast_speed2"], getattr(self, "_c_ref", 0.0), getattr(self, "_inv_dt", 0.0),
                      getattr(self, "_kd", 0.0), fp["posture_gain"], float(torque), d, n, model.nv,
-                     len(self.ik.rows))
+                     len(self.ik.rows), float(self._pose))
         rref = np.zeros(9) if self.rotation_ref is None else self.rotation_ref.reshape(9)
         lead = self._lead if not torque else np.zeros(n)
         return np.concatenate([head, rref, self._kn_n, self._normal, self._sA.reshape(3 * d), fp["q_home"],
@@ -207,8 +220,9 @@ class FieldController:
         if self._kernel is not None:   # compile (or load from the cache) now, not in the first control step
             _, pos, rot = self.kin._placement()
             zeros = np.zeros(self._nv)
+            v0 = np.zeros(6 if self._pose else self.placement.dim)
             for p_, r_ in ((pos, rot), (np.ascontiguousarray(pos), np.ascontiguousarray(rot))):  # Pinocchio, MuJoCo
-                self._kernel(self.kin._jac, p_, r_, np.zeros(self.placement.dim), np.asarray(q, dtype=np.float64),
+                self._kernel(self.kin._jac, p_, r_, v0, np.asarray(q, dtype=np.float64),
                              zeros, zeros, self._qdot_prev.copy(), self._prm, self._out.copy())
 
     def measure(self, q: np.ndarray) -> np.ndarray:
@@ -226,12 +240,33 @@ class FieldController:
         return self._site_pos
 
     def to_task(self, p: np.ndarray) -> np.ndarray:
-        """x = A^T (p - o) / s, shape (d,)."""
-        return self._At_s.dot(p - self._origin)
+        """x = A^T (p - o) / s, shape (d,); for a pose task the chart point z (6,) of the last
+        measured pose (module docstring), remembered for the twist."""
+        if not self._pose:
+            return self._At_s.dot(p - self._origin)
+        assert self._chart is not None
+        rot = self._site_rot if self._from_site else self.kin.ee_rotation()
+        self._z = z = self._chart.point(self._At_s.dot(p - self._origin), self._rot_t.dot(rot))
+        return z
+
+    def measured_rotation(self) -> np.ndarray:
+        """The tool rotation, shape (3, 3), world, of the last ``measure`` / ``measure_site``."""
+        return self._site_rot if self._from_site else self.kin.ee_rotation()
+
+    def pose_twist(self, v: np.ndarray) -> np.ndarray:
+        """The world twist (6,) of a pose task's command v = z_dot (6,) at the last ``to_task``
+        point: s A z_dot[:3] and A omega (Eq. (P3))."""
+        assert self._chart is not None
+        tw = self._chart.twist(self._z, v)
+        tw[:3] = self._sA.dot(tw[:3])
+        tw[3:] = self._rot.dot(tw[3:])
+        return tw
 
     def twist(self, v: np.ndarray) -> np.ndarray:
         """The tool twist, shape (6,), for task velocity v, shape (d,), at the last measured pose."""
         # ndarray.dot costs about half of @ on these tiny operands (call overhead dominates)
+        if self._pose:
+            return self.pose_twist(v)
         tw = self._twist
         if self._plane:
             tw[:3] = self._sA.dot(v) - self._kn_n * (self._normal.dot(self.kin.ee_position()) - self._n_o)
@@ -291,7 +326,8 @@ class FieldController:
                 pos, rot = self._site_pos, self._site_rot
             else:
                 _, pos, rot = self.kin._pose or self.kin._placement()
-            if self._kernel(self.kin._jac, pos, rot, v, q, self._qvel, self._bias, self._qdot_prev, self._prm,
+            vk = self.pose_twist(v) if self._pose else v
+            if self._kernel(self.kin._jac, pos, rot, vk, q, self._qvel, self._bias, self._qdot_prev, self._prm,
                             self._out) == 0:
                 if self._torque:
                     mujoco.mj_mulM(model, data, self._macc, self._acc_full)

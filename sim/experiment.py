@@ -11,6 +11,10 @@ trace: ``path_error_m`` (|p(t) - r(s(t))| in world at the end), ``path_recovery_
 push or a hold: from its start until |p - r(s)| stays <= 5 mm), ``phase_lag_s`` (T max_t (s_u(t) -
 s(t)), s_u the run without the push or hold) and, with a hold, ``phase_advance_hold`` (s at the
 hold's end minus s at its start) beside ``phase_advance_free`` (the hold's duration / T).
+
+Demos of poses (``DemoSet.has_orientation``) make a pose task: its task points are the chart points
+of ``lfd.pose`` (``Experiment.task_demos``), it runs where it was recorded (``Placement.recorded``)
+unless a placement is given, and its runs add ``sim.metrics.orientation_metrics``.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from sim.camera import CameraSpec
 from sim.controller import Gains
 from sim.errors import SimError
 from sim.loop import FPS, Hold, PhaseLoop, RunTrace, execute
-from sim.metrics import RECOVERY_TOLERANCE_M, recovery_time, run_metrics
+from sim.metrics import RECOVERY_TOLERANCE_M, orientation_metrics, recovery_time, run_metrics
 from sim.obstacles import mocap_path, with_obstacles
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
 from sim.placement import Placement, base_position
@@ -42,16 +46,19 @@ from sim.task import ArmPhysics, make_environment
 SCENARIOS: tuple[str, ...] = ("none", "offset", "push", "goal", "noise", "hold")
 
 
-def scenario(name: str, seed: int = 0) -> tuple[Perturbation, ...]:
+def scenario(name: str, seed: int = 0, pose: bool = False) -> tuple[Perturbation, ...]:
     """The perturbations of a named scenario: ``none``; ``offset`` (start 2 cm off the demo's
-    start); ``push`` (20 N for 0.2 s on the tool's body at t = 1 s); ``goal`` (goal moved 2 cm);
-    ``noise`` (joint-velocity noise 0.01 rad/s per control step); ``hold`` (the arm held still from
-    t = 1 s for 1 s, ``sim.loop.Hold``). Directions are drawn from seed."""
+    start; a pose task's 5 cm and turned 30 degrees); ``push`` (20 N for 0.2 s on the tool's body at
+    t = 1 s); ``goal`` (goal moved 2 cm; a pose task's also turned 15 degrees); ``noise``
+    (joint-velocity noise 0.01 rad/s per control step); ``hold`` (the arm held still from t = 1 s for
+    1 s, ``sim.loop.Hold``). Directions and axes are drawn from seed."""
     table: dict[str, tuple[Perturbation, ...]] = {
         "none": (),
-        "offset": (StartOffset(distance_m=0.02, seed=seed),),
+        "offset": (StartOffset(distance_m=0.05, angle_deg=30.0, seed=seed) if pose else
+                   StartOffset(distance_m=0.02, seed=seed),),
         "push": (Push(force_n=20.0, duration_s=0.2, start_s=1.0, seed=seed),),
-        "goal": (GoalShift(distance_m=0.02, seed=seed),),
+        "goal": (GoalShift(distance_m=0.02, angle_deg=15.0, seed=seed) if pose else
+                 GoalShift(distance_m=0.02, seed=seed),),
         "noise": (JointVelocityNoise(std_rad_s=0.01, seed=seed),),
         "hold": (Hold(start_s=1.0, duration_s=1.0),),  # type: ignore[dict-item]
     }
@@ -106,9 +113,10 @@ class Experiment:
         The arm; the actuation is the robot's (``robots.load_robot(..., actuation=...)``,
         ``RobotModel.actuation``).
     demos : DemoSet
-        The demonstrations, shape (N, T, d).
+        The demonstrations, shape (N, T, d), or poses (module docstring).
     placement : Placement, optional
-        Task space -> world (default ``Placement.auto`` with ``plane`` and ``size_m``).
+        Task space -> world (default ``Placement.auto`` with ``plane`` and ``size_m``; for poses
+        ``Placement.recorded``, or ``Placement.auto`` when ``size_m`` is given).
     demo_index : int
         The demo whose start and duration the runs take.
     control_hz, ik, gains, feedforward : as ``sim.make_environment``.
@@ -128,12 +136,25 @@ class Experiment:
                  settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True,
                  fps: float = FPS, obstacles: Sequence[Obstacle] = ()) -> None:
         self.robot, self.demos = robot, demos
+        chart = None
+        if demos.has_orientation:
+            from lfd.pose import PoseChart, chart_demos
+
+            assert demos.goal_q is not None
+            chart = placement.chart if placement is not None and placement.chart is not None else \
+                PoseChart.at(demos.goal_q)
+            demos = chart_demos(demos, chart)
+            if placement is None:
+                placement = Placement.recorded(chart) if size_m is None else \
+                    Placement.auto(robot, demos.x, size_m=size_m, chart=chart)
+        #: the demos as task points (chart points for poses), shape (N, T, d)
+        self.task_demos = demos
         self.placement = placement or Placement.auto(robot, demos.x, plane=plane, size_m=size_m)
         self.obstacles = tuple(obstacles)
         if self.obstacles:   # the scene holds them; the placement above is the bare robot's
             self.robot = robot = with_obstacles(robot, self.obstacles, self.placement)
         self.rotation_ref = None
-        if not robot.planar:
+        if not robot.planar and chart is None:
             kin = Kinematics(robot)
             kin.update(robot.q_home)
             self.rotation_ref = kin.ee_rotation().copy()
@@ -143,6 +164,7 @@ class Experiment:
         self.demo_index = demo_index
         self.demo_t = demos.t[demo_index] - demos.t[demo_index, 0]
         self.demo_world = self.placement.to_world(demos.x[demo_index])
+        self.demo_rotations = self.placement.rotation_to_world(demos.x[demo_index]) if self.placement.pose else None
         self.start = demos.x[demo_index, 0].copy()
         self.duration_s = float(self.demo_t[-1]) + settle_s
         self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, gains=gains, feedforward=feedforward)
@@ -157,6 +179,7 @@ class Experiment:
         a phase field runs through ``PhaseLoop``)."""
         holds = [p for p in perturbations if isinstance(p, Hold)]
         rest = tuple(p for p in perturbations if not isinstance(p, Hold))
+        self._check_space(field)
         # the goal the run must reach: where a moving goal is at the end of the run
         env = make_environment(self.robot, self.placement, self.start, goal_at(field, self.duration_s),
                                duration_s=self.duration_s, perturbations=rest,
@@ -172,17 +195,37 @@ class Experiment:
         return execute(env, fn, fps=self.fps, progress=progress, desc=desc, hold=holds[0] if holds else None,
                        timed=is_time_varying(field))
 
-    def reference(self, field: Field, trace: RunTrace) -> np.ndarray:
-        """p_ref(t_k), shape (K+1, 3): the task-space rollout of the (goal-shifted) field from the
-        run's measured start, x_ref = dg + Phi_t(x0 - dg), mapped to world (``lfd.integrate.rk4``;
-        a time-varying field is integrated in time, from t = 0)."""
+    def _check_space(self, field: Field) -> None:
+        """SimError unless the field lives where the task does (a pose field on this task's chart)."""
+        chart, own = field.chart, self.placement.chart
+        if (chart is None) != (own is None):
+            kind = "a pose field" if chart is not None else "a position field"
+            raise SimError(f"{kind} cannot run on {'poses' if own is not None else 'positions'} "
+                           f"({self.demos.name}): train it on these demos")
+        if chart is not None and own is not None and not np.allclose(chart.goal_rotation, own.goal_rotation,
+                                                                       atol=1e-9):
+            raise SimError("the pose field's goal orientation is not this task's: train it on these demos")
+
+    def task_points(self, trace: RunTrace) -> np.ndarray:
+        """The run's measured tool poses as task points, shape (K+1, d) (chart points for poses)."""
+        if self.placement.pose:
+            return self.placement.to_task(trace.ee, trace.ee_rot)
+        return self.placement.to_task(trace.ee)
+
+    def reference_task(self, field: Field, trace: RunTrace) -> np.ndarray:
+        """x_ref(t_k), shape (K+1, d): the task-space rollout of the (goal-shifted) field from the
+        run's measured start, x_ref = dg + Phi_t(x0 - dg) (``lfd.integrate.rk4``; a time-varying
+        field is integrated in time, from t = 0)."""
         shift = self._shift(field, trace)
-        x0 = self.placement.to_task(trace.ee[0])
+        x0 = self.task_points(trace)[0]
         if is_phased(field):
             x, _ = rk4_phase(field.phase_point_fn(x0 - shift), x0 - shift, trace.t)
-            return self.placement.to_world(x + shift)
-        x = rk4(field.single_point_evaluator(), x0 - shift, trace.t, timed=is_time_varying(field))
-        return self.placement.to_world(x + shift)
+            return x + shift
+        return rk4(field.single_point_evaluator(), x0 - shift, trace.t, timed=is_time_varying(field)) + shift
+
+    def reference(self, field: Field, trace: RunTrace) -> np.ndarray:
+        """p_ref(t_k), shape (K+1, 3): ``reference_task`` mapped to world."""
+        return self.placement.to_world(self.reference_task(field, trace))
 
     def _shift(self, field: Field, ro: RunTrace) -> np.ndarray:
         """The run's constant goal shift dg (``sim.perturbations.GoalShift``), shape (d,), task units:
@@ -192,7 +235,7 @@ class Experiment:
     def run(self, field: Field, name: str, perturbations: tuple[Perturbation, ...] | None = None,
             seed: int = 0, progress: bool = False) -> RunResult:
         """Run and score scenario ``name`` (its perturbations, or the ones given)."""
-        perts = scenario(name, seed) if perturbations is None else perturbations
+        perts = scenario(name, seed, self.placement.pose) if perturbations is None else perturbations
         ro = self.simulate(field, perts, progress, desc=f"{field.learner}/{name}")
         unperturbed = None
         window = ro.push_window_s or ro.hold_window_s
@@ -205,9 +248,14 @@ class Experiment:
                 cached = (field, free.ee, free.phase)
                 self._unperturbed[key] = cached
             unperturbed = cached[1]
-        ref = self.reference(field, ro)
+        ref_task = self.reference_task(field, ro)
+        ref = self.placement.to_world(ref_task)
         metrics: dict[str, Any] = run_metrics(ro.t, ro.ee, ref, ro.goal_world, self.demo_t, self.demo_world,
                                               unperturbed, ro.push_window_s)
+        if self.placement.pose and ro.ee_rot is not None and self.demo_rotations is not None:
+            metrics.update(orientation_metrics(ro.t, ro.ee_rot, self.placement.rotation_to_world(ref_task),
+                                               self.placement.rotation_to_world(ro.goal_task), self.demo_t,
+                                               self.demo_rotations))
         metrics.update(joint_limit_violations=ro.joint_limit_violations, ik_limit_hits=ro.ik_limit_hits,
                        realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us)
         if ro.phase is not None:
@@ -231,7 +279,7 @@ class Experiment:
         recomputed from the recorded states: a check of ``RunTrace.command``, which the loop records
         as it feeds the controller (before IK)."""
         shift = self._shift(field, ro)
-        x = self.placement.to_task(ro.ee) - shift
+        x = self.task_points(ro) - shift
         if is_phased(field) and ro.phase is not None:
             start = ro.start_task - shift
             phase_fn = field.phase_point_fn(start)
@@ -246,7 +294,7 @@ class Experiment:
         """The phase metrics of a run of a phase field (module docstring)."""
         assert is_phased(field) and ro.phase is not None
         shift = self._shift(field, ro)
-        x0 = self.placement.to_task(ro.ee[0]) - shift
+        x0 = self.task_points(ro)[0] - shift
         path = self.placement.to_world(field.reference(ro.phase, x0) + shift)      # (K+1, 3)
         err = np.linalg.norm(ro.ee - path, axis=1)
         out: dict[str, Any] = {"path_error_m": float(err[-1]), "path_error_max_after_1s_m":
@@ -269,11 +317,12 @@ class Experiment:
         """Write the MP4 of one run, or of several runs side by side (one labelled panel each,
         ``sim.render.render_panels``, ``width`` x ``height`` in all); returns the frame count."""
         results = result if isinstance(result, list) else [result]
-        normal = None if self.placement.dim == 3 else self.placement.normal
+        normal = None if self.placement.dim != 2 else self.placement.normal
         names = titles or [f"{r.learner} / {r.scenario}" for r in results]
         panels = [Panel(r.trace, r.reference, name, r.goal_path) for r, name in zip(results, names)]
         return render_panels(self.physics.model.ptr, panels, self.demo_world, path, self.base,
-                             self.robot.mj_qpos_adr, normal, width, height, fps, camera, progress=progress)
+                             self.robot.mj_qpos_adr, normal, width, height, fps, camera, progress=progress,
+                             demo_rotations=self.demo_rotations)
 
     def describe(self) -> dict[str, Any]:
         """The experiment's settings, for the metrics JSON."""

@@ -204,10 +204,11 @@ class JobFiles:
         from sim.plots import paths_figure
 
         plan, staged = self.plan, self.outputs.staged
-        goal = np.asarray(next(iter(fields.values())).goal)
-        label_runs = [(f"{r.learner} / {r.scenario}", exp.placement.to_task(r.trace.ee)) for r in results]
+        pd = exp.placement.position_dim   # a pose task's figure shows its positions
+        goal = np.asarray(next(iter(fields.values())).goal)[:pd]
+        label_runs = [(f"{r.learner} / {r.scenario}", exp.task_points(r.trace)[:, :pd]) for r in results]
         _png(staged(plan.extra_plots["paths"]),
-             paths_figure(exp.demos.x, label_runs, goal, f"tool paths over the demos {exp.demos.name}"))
+             paths_figure(exp.task_demos.x[..., :pd], label_runs, goal, f"tool paths over the demos {exp.demos.name}"))
         for learner in {r.learner for r in results}:
             path = plan.extra_plots.get(f"loss_{learner}")
             if path is not None and fields[learner].history.get("loss"):

@@ -99,6 +99,8 @@ class RunTrace:
     mocap_pos : ndarray, shape (K+1, nmocap, 3), or None
         Where the mocap bodies (moving obstacles, ``sim.obstacles.mocap_path``) were at each step, m;
         ``frame_mocap`` gives them at the video frames.
+    ee_rot : ndarray, shape (K+1, 3, 3), or None
+        A pose task's measured tool rotations, world (None for a position task).
     """
 
     t: np.ndarray
@@ -123,6 +125,7 @@ class RunTrace:
     hold_window_s: tuple[float, float] | None = None
     cpu_s: float | None = None
     mocap_pos: np.ndarray | None = None
+    ee_rot: np.ndarray | None = None
 
     def steps_at(self, times: np.ndarray) -> np.ndarray:
         """Index, shape (F,), of the control step nearest each of ``times`` (F,), s (the last step
@@ -215,7 +218,8 @@ def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
     task: FieldTrackingTask = env.task
     env.reset()
     m, d = env.physics.model.ptr, env.physics.data.ptr
-    rec = _Record.allocate(task.n_steps, task.control_dt, task.robot.n, m.nq, task.placement.dim, fps)
+    rec = _Record.allocate(task.n_steps, task.control_dt, task.robot.n, m.nq, task.placement.dim, fps,
+                           task.placement.pose)
     hits0 = getattr(task.controller.ik, "limit_hits", 0)
     dt = task.control_dt
     h0, h1 = (-1, -1) if hold is None else (int(round(hold.start_s / dt)),
@@ -247,6 +251,7 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
     shifted = bool(np.any(shift != 0))
     fsteps, Q, Qd, P, V, F, FQ, steps = rec.frame_steps, rec.q, rec.qdot, rec.ee, rec.command, rec.force, \
         rec.frame_qpos, rec.step_s
+    ROT = rec.rot   # a pose task's tool rotations (None otherwise)
     warn, bad = d.warning.number, [int(w) for w in _DIVERGENCE]
     j, next_frame, q_hold = 0, int(fsteps[0]), None
     clock, split = time.perf_counter, ctl.uses_mj_dynamics
@@ -275,6 +280,8 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
             j += 1
             next_frame = int(fsteps[j]) if j < len(fsteps) else -1
         x = to_task(p)
+        if ROT is not None:
+            ROT[k] = ctl.measured_rotation()
         if shifted:
             x = x - shift
         v = V[k] = field_fn(x, k * dt) if timed else field_fn(x)
@@ -311,6 +318,8 @@ def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[
     rec.qdot[K] = d.qvel[task.robot.mj_dof_adr]
     rec.ee[K] = ctl.measure(q)
     x = ctl.to_task(rec.ee[K]) - task.schedule.goal_offset_task
+    if rec.rot is not None:
+        rec.rot[K] = ctl.measured_rotation()
     if not np.isfinite(x).all():   # diverged: _to_trace raises SimulationError
         rec.command[K] = np.nan
     else:
@@ -324,7 +333,7 @@ def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[
 class _Record:
     """What the loop writes: q, qdot (K+1, n), ee (K+1, 3), command (K+1, d), force (K+1, 3),
     step_s (K,), and the full qpos frame_qpos (F, nq) at the video frame times frame_t (F,), i.e. at
-    control steps frame_steps (F,)."""
+    control steps frame_steps (F,); a pose task's tool rotations rot (K+1, 3, 3)."""
 
     q: np.ndarray
     qdot: np.ndarray
@@ -335,13 +344,15 @@ class _Record:
     frame_t: np.ndarray
     frame_steps: np.ndarray
     frame_qpos: np.ndarray
+    rot: np.ndarray | None = None
 
     @classmethod
-    def allocate(cls, K: int, dt: float, n: int, nq: int, dim: int, fps: float) -> _Record:
+    def allocate(cls, K: int, dt: float, n: int, nq: int, dim: int, fps: float, pose: bool = False) -> _Record:
         ftimes = frame_times(K * dt, fps)
         fsteps = np.minimum(np.round(ftimes / dt).astype(int), K)
         return cls(np.empty((K + 1, n)), np.empty((K + 1, n)), np.empty((K + 1, 3)), np.empty((K + 1, dim)),
-                   np.zeros((K + 1, 3)), np.empty(K), ftimes, fsteps, np.empty((len(fsteps), nq)))
+                   np.zeros((K + 1, 3)), np.empty(K), ftimes, fsteps, np.empty((len(fsteps), nq)),
+                   np.empty((K + 1, 3, 3)) if pose else None)
 
 
 def _to_trace(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.ndarray], wall: float,
@@ -362,7 +373,7 @@ def _to_trace(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.
         goal_world=task.goal_world.copy(), push_window_s=s.push_window_s,
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,
         ik_limit_hits=ik_limit_hits, joint_limit_violations=violations,
-        phase=phase, hold_window_s=hold_window, cpu_s=cpu, mocap_pos=s.mocap_pos)
+        phase=phase, hold_window_s=hold_window, cpu_s=cpu, mocap_pos=s.mocap_pos, ee_rot=rec.rot)
 
 
 def _divergence_message(d: mujoco.MjData, k: int, dt: float, bad: list[int]) -> str:

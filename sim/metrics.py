@@ -10,6 +10,11 @@
 * ``max_deviation_m`` / ``recovery_time_s`` (runs with a push): e(t) = |p(t) - p_u(t)|, p_u the
   same run without the push. max_deviation = max_{t >= t0} e(t); recovery time = t_r - t0 with
   t_r the first time after the push ends (t1) from which e stays <= 5 mm to the end of the run.
+
+A pose task adds the same scores for the tool's orientation, in degrees of geodesic angle
+|log(R_1^T R_2)| (``lfd.pose``, Eq. (P4); ``orientation_metrics``): ``tracking_rmse_deg``,
+``imitation_orientation_error_deg`` (the RMS angle at the demonstration's times) and
+``final_goal_error_deg``.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from lfd import metrics as lfd_metrics
+from lfd.pose import geodesic_angle
 
 RECOVERY_TOLERANCE_M = 0.005
 
@@ -65,3 +71,19 @@ def run_metrics(t: np.ndarray, ee: np.ndarray, reference: np.ndarray, goal: np.n
         out["max_deviation_m"] = float(e[t >= push_window[0]].max())
         out["recovery_time_s"] = recovery_time(t, e, push_window)
     return out
+
+
+def orientation_metrics(t: np.ndarray, rot: np.ndarray, reference: np.ndarray, goal: np.ndarray,
+                        demo_t: np.ndarray, demo: np.ndarray) -> dict[str, float]:
+    """The orientation metrics of one run of a pose task (module docstring), degrees.
+
+    t : (K,) times; rot, reference : (K, 3, 3) measured and reference tool rotations (world);
+    goal : (3, 3); demo_t : (T,) and demo : (T, 3, 3) the demonstration's rotations, times from 0.
+    The tool's rotation at a demo time is that of the nearest control step.
+    """
+    k = np.clip(np.searchsorted(t, demo_t - demo_t[0] + t[0]), 0, len(t) - 1)
+    track = np.degrees(geodesic_angle(rot, reference))
+    imit = np.degrees(geodesic_angle(rot[k], demo))
+    return {"tracking_rmse_deg": float(np.sqrt(np.mean(track ** 2))),
+            "imitation_orientation_error_deg": float(np.sqrt(np.mean(imit ** 2))),
+            "final_goal_error_deg": float(np.degrees(geodesic_angle(rot[-1], goal)))}

@@ -109,6 +109,22 @@ def arrow(draw: ImageDraw.ImageDraw, tail: np.ndarray, head: np.ndarray, rgb: RG
     draw.polygon([tuple(head), tuple(base + perp), tuple(base - perp)], fill=rgb)
 
 
+AXIS_RGB: tuple[RGB, RGB, RGB] = ((220, 40, 40), (40, 170, 40), (40, 90, 230))   # x, y, z
+
+
+def draw_frames(img: Image.Image, origins_uv: np.ndarray, tips_uv: np.ndarray, width: float) -> None:
+    """Tool frames as small axes: origins (F, 2) and their x, y, z axis tips (F, 3, 2), pixels; x red,
+    y green, z blue."""
+    st = Style(img.height)
+    draw = ImageDraw.Draw(img)
+    w = st.px(width, 1)
+    for o, tips in zip(origins_uv, tips_uv):
+        if not (np.isfinite(o).all() and np.isfinite(tips).all()):
+            continue
+        for tip, rgb in zip(tips, AXIS_RGB):
+            draw.line([tuple(o), tuple(tip)], fill=rgb, width=w)
+
+
 def draw_static(img: Image.Image, demo_uv: np.ndarray, field_uv: np.ndarray | None, title: str,
                 legend: bool = True) -> None:
     """What stays the same in every frame of a panel: the demonstration and the field's rollout

@@ -1,10 +1,13 @@
 """Perturbations of a closed-loop run, each seeded and deterministic.
 
-* ``StartOffset``: the run starts ``distance_m`` away from the demonstration's start.
+* ``StartOffset``: the run starts ``distance_m`` away from the demonstration's start (and, for a
+  pose task, turned by ``angle_deg`` about a world axis).
 * ``Push``: an external force F (N) on a body for ``duration_s`` from ``start_s``, through
   ``xfrc_applied`` (world frame, at the body's centre of mass).
 * ``GoalShift``: the goal moves by ``distance_m``; the field is translated with it,
-  f_shifted(x) = f(x - dg), so its attractor is g + dg.
+  f_shifted(x) = f(x - dg), so its attractor is g + dg. For a pose task it also turns by ``angle_deg``
+  about a world axis u: in the chart at R_g (``lfd.pose``) the turned goal exp(theta u) R_g is the chart
+  point l theta R_g^T A^T u, so the same translation of the field moves its attractor there exactly.
 * ``JointVelocityNoise``: every control step, qdot_j += N(0, std^2) on each arm joint.
 
 A random direction (when none is given) is drawn from the perturbation's own seed: in the task
@@ -34,8 +37,15 @@ def _direction(direction: Sequence[float] | None, seed: int, placement: Placemen
             raise SimError(f"perturbation direction must be a non-zero 3-vector, got {list(direction)}")
         return u / n
     rng = np.random.default_rng(seed)
-    u = rng.normal(size=placement.dim)
+    u = rng.normal(size=placement.position_dim)
     return placement.axes @ (u / np.linalg.norm(u))
+
+
+def turn_axis(seed: int) -> np.ndarray:
+    """A seeded random unit axis, shape (3,), world, for the turn of a pose task's perturbation (its
+    own stream of ``seed``, apart from the direction's)."""
+    u = np.random.default_rng([seed, 1]).normal(size=3)
+    return u / np.linalg.norm(u)
 
 
 @dataclass(frozen=True)
@@ -64,10 +74,16 @@ class _Directed(Perturbation):
 @dataclass(frozen=True)
 class StartOffset(_Directed):
     """Start ``distance_m`` (m) from the demonstration's start, along ``direction`` (world, shape (3,))
-    or a direction drawn from ``seed``."""
+    or a direction drawn from ``seed``; for a pose task also turned by ``angle_deg`` about a world axis
+    drawn from ``seed`` (``turn_axis``)."""
 
     distance_m: float = 0.02
+    angle_deg: float = field(default=0.0, kw_only=True)
     kind = "offset"
+
+    def turn_world(self) -> np.ndarray:
+        """The start's turn theta u, shape (3,), world, rad (zero without ``angle_deg``)."""
+        return np.radians(self.angle_deg) * turn_axis(self.seed)
 
     def offset_world(self, placement: Placement) -> np.ndarray:
         """The start displacement dp, shape (3,), in metres."""
@@ -93,10 +109,16 @@ class Push(_Directed):
 
 @dataclass(frozen=True)
 class GoalShift(_Directed):
-    """Move the goal by ``distance_m`` (m) along ``direction`` (world, shape (3,)) or one drawn from ``seed``."""
+    """Move the goal by ``distance_m`` (m) along ``direction`` (world, shape (3,)) or one drawn from
+    ``seed``; for a pose task also turn it by ``angle_deg`` (module docstring)."""
 
     distance_m: float = 0.02
+    angle_deg: float = field(default=0.0, kw_only=True)
     kind = "goal"
+
+    def turn_world(self) -> np.ndarray:
+        """The goal's turn theta u, shape (3,), world, rad (zero without ``angle_deg``)."""
+        return np.radians(self.angle_deg) * turn_axis(self.seed)
 
     def offset_world(self, placement: Placement) -> np.ndarray:
         """The goal displacement dg, shape (3,), in metres (projected on the task plane when d = 2)."""
@@ -117,6 +139,7 @@ class Schedule:
     """What the control loop applies, precomputed.
 
     start_offset_task : array, shape (d,) -- added to the start point (task units)
+    start_turn_world : array, shape (3,)  -- a pose task's start turn theta u (world, rad)
     goal_offset_task : array, shape (d,)  -- the field's translation dg (task units)
     push_body : int                       -- MuJoCo body id of the push (-1: none)
     push_force : array, shape (6,)        -- xfrc_applied row during the push (force, torque)
@@ -129,6 +152,7 @@ class Schedule:
 
     start_offset_task: np.ndarray
     goal_offset_task: np.ndarray
+    start_turn_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
     push_body: int = -1
     push_force: np.ndarray | None = None
     push_steps: tuple[int, int] = (-1, -1)
@@ -147,10 +171,16 @@ def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement
     if len(pushes) > 1:
         raise SimError("only one push per run is supported")
     for p in perturbations:
+        if isinstance(p, (StartOffset, GoalShift)) and p.angle_deg != 0.0 and placement.chart is None:
+            raise SimError(f"{p.kind}: a turn (angle_deg) needs a pose task")
         if isinstance(p, StartOffset):
             sched.start_offset_task = sched.start_offset_task + placement.offset_to_task(p.offset_world(placement))
+            sched.start_turn_world = sched.start_turn_world + p.turn_world()
         elif isinstance(p, GoalShift):
             sched.goal_offset_task = sched.goal_offset_task + placement.offset_to_task(p.offset_world(placement))
+            if placement.chart is not None and p.angle_deg != 0.0:
+                turn_task = placement.rotation.T @ p.turn_world()
+                sched.goal_offset_task[3:] += placement.chart.length * (placement.chart.goal_rotation.T @ turn_task)
         elif isinstance(p, Push):
             name = p.body or default_body
             if name not in body_ids:

@@ -34,7 +34,7 @@ import lfd
 from lfd.errors import ConfigError
 from lfd.field import Field, is_phased
 from lfd.obstacles import MIN_GOAL_GAMMA, Obstacle, parse_obstacle
-from robots import RobotModel, load_robot
+from robots import RobotError, RobotModel, load_robot
 from sim.camera import CameraSpec
 from sim.controller import Gains
 from sim.errors import PlacementError
@@ -116,6 +116,7 @@ class ArmJob:
     size_m: float | None = None
     placement: str = "auto"
     origin: tuple[float, float, float] | None = None
+    shift: tuple[float, float, float] | None = None
     scale: float | None = None
     push: PushSpec = PushSpec()
     obstacles: tuple[str, ...] = ()
@@ -149,13 +150,16 @@ class ArmJob:
             raise ConfigError(f"--scale must be a positive number, got {self.scale:g}")
         if self.placement == "recorded" and (self.origin, self.scale, self.size_m) != (None, None, None):
             raise ConfigError("--placement recorded takes no --origin, --scale or --size-m")
+        if self.shift is not None and (self.origin, self.scale, self.size_m) != (None, None, None):
+            raise ConfigError("--shift moves recorded poses; it takes no --origin, --scale or --size-m")
         if self.iters is not None and self.iters < 1:
             raise ConfigError(f"--iters must be a positive integer, got {self.iters}")
         self.push.check()
 
-    def perturbations(self, name: str, seed: int) -> tuple[Perturbation, ...]:
-        """The perturbations of scenario ``name`` with ``seed``, the push taking ``push``."""
-        return (self.push.perturbation(seed),) if name == "push" else scenario(name, seed)
+    def perturbations(self, name: str, seed: int, pose: bool = False) -> tuple[Perturbation, ...]:
+        """The perturbations of scenario ``name`` with ``seed`` (of a pose task if ``pose``), the push
+        taking ``push``."""
+        return (self.push.perturbation(seed),) if name == "push" else scenario(name, seed, pose)
 
 
 @dataclass
@@ -182,11 +186,25 @@ def iters_option(learner: str, iters: int) -> dict[str, int]:
 
 
 def placement_of(job: ArmJob, robot: RobotModel, demos: lfd.DemoSet) -> Placement | None:
-    """The placement the job asks for, or None for the Experiment's default (``Placement.auto``)."""
-    if job.placement == "recorded":
-        if demos.dim != 3:
-            raise ConfigError(f"--placement recorded needs 3-D demos, {demos.name} are {demos.dim}-D")
-        return Placement(np.zeros(3), np.eye(3), 1.0, 3)
+    """The placement the job asks for, or None for the Experiment's default (``Placement.auto``;
+    for poses ``Placement.recorded``, or ``Placement.auto`` with ``--size-m``)."""
+    chart = None
+    if demos.has_orientation:
+        from lfd.pose import PoseChart
+
+        assert demos.goal_q is not None
+        chart = PoseChart.at(demos.goal_q)
+        if job.shift is not None:   # the recorded poses, translated
+            return Placement(np.asarray(job.shift, dtype=np.float64), np.eye(3), 1.0, 6, chart)
+        if job.placement == "recorded" or (job.origin is None and job.scale is None):
+            return None
+    else:
+        if job.shift is not None:
+            raise ConfigError("--shift is for demos of poses (run where recorded); use --origin for positions")
+        if job.placement == "recorded":
+            if demos.dim != 3:
+                raise ConfigError(f"--placement recorded needs 3-D demos, {demos.name} are {demos.dim}-D")
+            return Placement(np.zeros(3), np.eye(3), 1.0, 3)
     if job.origin is None and job.scale is None:
         return None
     auto = Placement.auto(robot, demos.x, plane=job.plane, size_m=job.size_m)
@@ -194,6 +212,8 @@ def placement_of(job: ArmJob, robot: RobotModel, demos: lfd.DemoSet) -> Placemen
     center = (lo + hi) / 2
     scale = auto.scale if job.scale is None else float(job.scale)
     target = auto.to_world(center) if job.origin is None else np.asarray(job.origin, dtype=np.float64)
+    if chart is not None:
+        return Placement(target - scale * auto.axes @ center, auto.rotation, scale, 6, chart)
     return Placement(target - scale * auto.axes @ center, auto.rotation, scale, auto.dim)
 
 
@@ -282,12 +302,25 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
     planned = list(job.learners) if job.learners else (["node"] if job.model else list(DEFAULT_LEARNERS))
     files = JobFiles(job, planned)                     # every output path checked before any work
     demos = lfd.load_demos(job.demos)
+    if demos.has_orientation and (job.obstacles or job.goal_shift or job.goal_path):
+        flag = "--obstacle" if job.obstacles else "--goal-shift/--goal-path"
+        raise ConfigError(f"{flag} is for position demos; {demos.name} are poses (the goal pose shift "
+                          "is the scenario 'goal')")
     obstacles = [parse_obstacle(text, demos.dim) for text in job.obstacles]
     goal_motion = goal_motion_of(job, demos.dim)
     for o in obstacles:
         if float(o.gamma(demos.goal)) < MIN_GOAL_GAMMA:
             raise ConfigError(f"the demos' goal lies inside or too close to the {o.describe()}")
-    robot = load_robot(job.robot, job.ee_frame, actuation=job.actuation, table=job.table)
+    ee_frame = job.ee_frame
+    if ee_frame is None and demos.frame is not None:   # poses run with the frame they were recorded in
+        ee_frame = demos.frame
+        try:
+            robot = load_robot(job.robot, ee_frame, actuation=job.actuation, table=job.table)
+        except RobotError as e:
+            raise ConfigError(f"{demos.name} holds poses of the frame '{ee_frame}', which robot '{job.robot}' "
+                              f"cannot use ({e}); name the tool frame with --ee-frame") from None
+    else:
+        robot = load_robot(job.robot, ee_frame, actuation=job.actuation, table=job.table)
     if job.camera is not None:
         try:
             job.camera.check(robot.mj_model)
@@ -335,7 +368,10 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
             if name not in fields:
                 train(name)
     for name, f in list(fields.items()):
-        if f.dim != demos.dim:
+        if (f.chart is not None) != demos.has_orientation:
+            raise ConfigError(f"the {name} model is trained on {'poses' if f.chart is not None else 'positions'} "
+                              f"but the demos {demos.name} are {'poses' if demos.has_orientation else 'positions'}")
+        if f.dim != exp.placement.dim:
             raise ConfigError(f"the {name} model is {f.dim}-D but the demos {demos.name} are {demos.dim}-D")
         if (obstacles or goal_motion is not None) and is_phased(f):
             flag = "--obstacle" if obstacles else "--goal-shift/--goal-path"
@@ -355,14 +391,15 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
         return result
 
     t_sim = time.perf_counter()
-    results = [run(learner, name, job.perturbations(name, job.seed), job.seed)
+    results = [run(learner, name, job.perturbations(name, job.seed, exp.placement.pose), job.seed)
                for learner in main_learners for name in job.scenarios]
     side: list[RunResult] = []
     if job.side_by_side:
+        pose = exp.placement.pose
         for learner in SIDE_BY_SIDE_LEARNERS:
             done = [r for r in results if r.learner == learner and r.scenario == job.side_by_side]
             side.append(done[0] if done else run(learner, job.side_by_side,
-                                                 job.perturbations(job.side_by_side, job.seed), job.seed,
+                                                 job.perturbations(job.side_by_side, job.seed, pose), job.seed,
                                                  " (side by side)"))
     grid = [run(main_learners[0], "push", job.perturbations("push", job.seed + i), job.seed + i,
                 f", seed {job.seed + i} (grid)") for i in range(job.grid or 0)]

@@ -9,6 +9,11 @@ A task velocity v maps to the world velocity s A v. For d = 2 the plane normal i
 
 Default plane for a 2-D path on the Panda: horizontal, through the tool point at ``q_home``
 (tool pointing down, held constant); the measured tracking on either plane is in reports/arm.md.
+
+A pose task (a field on poses, ``lfd.pose``) has d = 6: x = (position, l log(R_g^T R)), the chart
+point of Eq. (P1) at the field's ``PoseChart``. Its positions map as above (A = R, 3 x 3) and its
+orientations by R_world = R R_task; ``Placement.recorded`` is the identity: poses run where they were
+recorded, in the robot's base frame.
 """
 
 from __future__ import annotations
@@ -17,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robots import Kinematics, RobotModel, solve_position_ik
+from lfd.pose import PoseChart
+from robots import Kinematics, RobotModel, solve_pose_ik
 from sim.errors import PlacementError
 
 PLANES: tuple[str, ...] = ("auto", "horizontal", "vertical")
@@ -25,6 +31,8 @@ SIZE_FRACTION = 0.15     # default path size: this fraction of the robot's reach
 REACH_MARGIN_M = 0.04    # reachability is checked this far around the path (offsets, pushes)
 JOINT_MARGIN = 0.05      # ... with every joint this fraction of its range away from its limits
 IK_TOLERANCE_M = 1e-3    # ... and a position error below this
+IK_TOLERANCE_RAD = 1e-3  # ... and, for a pose, a rotation error below this
+POSE_POSTURE_GAIN = 0.2  # a pose path's IK pulls the redundant joints toward q_home (``solve_pose_ik``)
 
 
 @dataclass(frozen=True)
@@ -34,13 +42,15 @@ class Placement:
     origin : array, shape (3,)     -- world position (m) of the task origin
     rotation : array, shape (3, 3) -- columns: task x, y, z axes in world coordinates
     scale : float                  -- metres per user unit
-    dim : int                      -- task dimension d (2 or 3)
+    dim : int                      -- task dimension d (2 or 3; 6 for a pose task)
+    chart : PoseChart or None      -- a pose task's orientation chart (then d = 6)
     """
 
     origin: np.ndarray
     rotation: np.ndarray
     scale: float
     dim: int
+    chart: PoseChart | None = None
 
     def __post_init__(self) -> None:
         r = np.asarray(self.rotation, dtype=np.float64)
@@ -48,16 +58,31 @@ class Placement:
             raise PlacementError("placement rotation must be a proper 3x3 rotation matrix")
         if not self.scale > 0:
             raise PlacementError(f"placement scale must be positive, got {self.scale}")
-        if self.dim not in (2, 3):
-            raise PlacementError(f"placement dimension must be 2 or 3, got {self.dim}")
+        if (self.dim == 6) != (self.chart is not None) or self.dim not in (2, 3, 6):
+            raise PlacementError(f"placement dimension must be 2 or 3, or 6 with a pose chart, got {self.dim}")
         object.__setattr__(self, "origin", np.asarray(self.origin, dtype=np.float64).reshape(3))
         object.__setattr__(self, "rotation", r)
         object.__setattr__(self, "scale", float(self.scale))
 
+    @classmethod
+    def recorded(cls, chart: PoseChart) -> Placement:
+        """The identity placement of a pose task: poses where they were recorded (base frame, metres)."""
+        return cls(np.zeros(3), np.eye(3), 1.0, 6, chart)
+
+    @property
+    def pose(self) -> bool:
+        """Whether this places a pose task (d = 6, module docstring)."""
+        return self.chart is not None
+
+    @property
+    def position_dim(self) -> int:
+        """The task's position coordinates: d, or 3 for a pose task."""
+        return 3 if self.chart is not None else self.dim
+
     @property
     def axes(self) -> np.ndarray:
-        """A = R[:, :d], shape (3, d): task axes in world coordinates."""
-        return self.rotation[:, :self.dim]
+        """A = R[:, :d], shape (3, d) (3 x 3 for a pose task): task axes in world coordinates."""
+        return self.rotation[:, :self.position_dim]
 
     @property
     def normal(self) -> np.ndarray:
@@ -65,29 +90,55 @@ class Placement:
         return self.rotation[:, 2]
 
     def to_world(self, x: np.ndarray) -> np.ndarray:
-        """p = o + s A x; x : array, shape (..., d) -> shape (..., 3)."""
-        return self.origin + self.scale * np.asarray(x, dtype=np.float64) @ self.axes.T
+        """p = o + s A x; x : array, shape (..., d) -> shape (..., 3) (a pose's position part)."""
+        x = np.asarray(x, dtype=np.float64)
+        if self.chart is not None:
+            x = x[..., :3]
+        return self.origin + self.scale * x @ self.axes.T
 
-    def to_task(self, p: np.ndarray) -> np.ndarray:
-        """x = A^T (p - o) / s; p : array, shape (..., 3) -> shape (..., d)."""
-        return (np.asarray(p, dtype=np.float64) - self.origin) @ self.axes / self.scale
+    def to_task(self, p: np.ndarray, rot: np.ndarray | None = None) -> np.ndarray:
+        """x = A^T (p - o) / s; p : array, shape (..., 3) -> shape (..., d). A pose task also needs
+        the tool rotations rot, shape (..., 3, 3), world: x = (A^T (p - o) / s, l log(R_g^T R^T rot))."""
+        pos = (np.asarray(p, dtype=np.float64) - self.origin) @ self.axes / self.scale
+        if self.chart is None:
+            return pos
+        if rot is None:
+            raise PlacementError("a pose task's points need the tool rotations as well as positions")
+        rel = np.einsum("ji,...jk->...ik", self.rotation, np.asarray(rot, dtype=np.float64))
+        return np.concatenate([pos, self.chart.rotation_coordinates(rel)], axis=-1)
+
+    def rotation_to_world(self, x: np.ndarray) -> np.ndarray:
+        """The world tool rotations R R_task, shape (..., 3, 3), of pose task points x (..., 6)."""
+        if self.chart is None:
+            raise PlacementError("only a pose task has orientations")
+        return np.einsum("ij,...jk->...ik", self.rotation, self.chart.rotations(x))
 
     def velocity_to_world(self, v: np.ndarray) -> np.ndarray:
-        """s A v; v : array, shape (..., d) -> shape (..., 3)."""
-        return self.scale * np.asarray(v, dtype=np.float64) @ self.axes.T
+        """s A v; v : array, shape (..., d) -> shape (..., 3) (a pose's linear part)."""
+        v = np.asarray(v, dtype=np.float64)
+        if self.chart is not None:
+            v = v[..., :3]
+        return self.scale * v @ self.axes.T
 
     def offset_to_task(self, offset_m: np.ndarray) -> np.ndarray:
-        """A^T dp / s: a world displacement dp (m), shape (..., 3), as a task displacement (..., d)."""
-        return np.asarray(offset_m, dtype=np.float64) @ self.axes / self.scale
+        """A^T dp / s: a world displacement dp (m), shape (..., 3), as a task displacement (..., d)
+        (no turn for a pose task)."""
+        pos = np.asarray(offset_m, dtype=np.float64) @ self.axes / self.scale
+        if self.chart is None:
+            return pos
+        return np.concatenate([pos, np.zeros(pos.shape[:-1] + (3,))], axis=-1)
 
     def to_dict(self) -> dict:
-        return {"origin": self.origin.tolist(), "rotation": self.rotation.tolist(),
-                "scale_m_per_unit": self.scale, "dim": self.dim}
+        out = {"origin": self.origin.tolist(), "rotation": self.rotation.tolist(),
+               "scale_m_per_unit": self.scale, "dim": self.dim}
+        if self.chart is not None:
+            out["pose_chart"] = self.chart.to_dict()
+        return out
 
     # ------------------------------------------------------------------ defaults
     @classmethod
     def auto(cls, robot: RobotModel, points: np.ndarray, plane: str = "auto",
-             size_m: float | None = None) -> Placement:
+             size_m: float | None = None, chart: PoseChart | None = None) -> Placement:
         """The default placement of task points, shape (..., d), on ``robot``.
 
         The bounding box of the points is centred on the tool position at ``q_home`` (a
@@ -95,7 +146,8 @@ class Placement:
         ``size_m`` (default ``SIZE_FRACTION`` of the robot's reach). A planar robot gets its own
         plane (world x, y). A 2-D path on a spatial robot goes on a horizontal plane (task x, y ->
         world x, y; ``plane="auto"``) or on a vertical plane facing the robot (task x -> sideways,
-        task y -> up). A 3-D path keeps the world axes.
+        task y -> up). A 3-D path keeps the world axes, and so does a pose path (``chart`` given,
+        points of shape (..., 6): its positions are placed, its orientations kept).
         """
         if plane not in PLANES:
             raise PlacementError(f"unknown plane '{plane}'; known: {', '.join(PLANES)}")
@@ -104,6 +156,8 @@ class Placement:
         pts = pts.reshape(-1, d)
         if robot.planar and d != 2:
             raise PlacementError(f"robot '{robot.name}' moves in a plane; it cannot follow a {d}-D field")
+        if chart is not None:
+            pts, d = pts[:, :3], 3
         lo, hi = pts.min(0), pts.max(0)
         extent = float(np.max(hi - lo))
         if not np.isfinite(extent) or extent <= 0:
@@ -126,6 +180,8 @@ class Placement:
         scale = float(size_m) / extent
         center = (lo + hi) / 2
         origin = home - scale * rotation[:, :d] @ center
+        if chart is not None:
+            return cls(origin, rotation, scale, 6, chart)
         return cls(origin, rotation, scale, d)
 
     # ------------------------------------------------------------------ reachability
@@ -143,18 +199,35 @@ class Placement:
         if not np.isfinite(pts).all():
             raise PlacementError("path has NaN or inf points")
         idx = np.unique(np.linspace(0, len(pts) - 1, min(n_path, len(pts))).round().astype(int))
-        lo, hi = pts.min(0), pts.max(0)
+        pd = self.position_dim
+        lo, hi = pts[:, :pd].min(0), pts[:, :pd].max(0)
         grow = margin_m / self.scale
         ring = _box_probe_points(lo - grow, hi + grow)
+        rots, source = None, np.zeros(0, dtype=int)
+        if self.chart is not None:
+            # a pose path: the margin around each sampled path point along the world axes, in that
+            # point's orientation (the box's corners are far from a winding 3-D path, and the arm need
+            # not reach them with any one orientation)
+            steps = np.concatenate([np.eye(3), -np.eye(3)]) * grow                     # (6, 3)
+            source = np.repeat(np.arange(0, len(idx), max(1, len(idx) // 8)), len(steps))
+            near = pts[idx][source]
+            ring = np.concatenate([near[:, :pd] + np.tile(steps, (len(source) // len(steps), 1)), near[:, pd:]], axis=1)
+            rots = self.rotation_to_world(np.concatenate([pts[idx], ring]))
         q = robot.q_home.copy()
+        solved: list[np.ndarray] = []   # the path points' joints: a pose path's margin points start there
         span = robot.q_max - robot.q_min
         qlo, qhi = robot.q_min + JOINT_MARGIN * span, robot.q_max - JOINT_MARGIN * span
         for k, x in enumerate(np.concatenate([pts[idx], ring])):
             on_path = k < len(idx)
             p = self.to_world(x)
-            q0 = q if on_path else robot.q_home
-            qs, err = solve_position_ik(robot, p, rotation, q0=q0)
+            q0 = q if on_path else (solved[source[k - len(idx)]] if rots is not None else robot.q_home)
+            qs, err, rot_err = solve_pose_ik(robot, p, rotation if rots is None else rots[k], q0=q0,
+                                             posture=0.0 if rots is None else POSE_POSTURE_GAIN)
             where = "path point" if on_path else f"point {margin_m * 100:.0f} cm around the path"
+            if rots is not None and err <= IK_TOLERANCE_M and not rot_err <= IK_TOLERANCE_RAD:
+                raise PlacementError(
+                    f"placement unreachable on '{robot.name}': the tool orientation at {where} {_fmt(p)} m is "
+                    f"missed by {np.degrees(rot_err):.1f} deg")
             if not err <= IK_TOLERANCE_M:
                 raise PlacementError(
                     f"placement unreachable on '{robot.name}': {where} {_fmt(p)} m is missed by "
@@ -168,6 +241,7 @@ class Placement:
                     f"[{robot.q_min[j]:.2f}, {robot.q_max[j]:.2f}]")
             if on_path:
                 q = qs
+                solved.append(qs)
 
 
 def reach(robot: RobotModel, samples: int = 256, seed: int = 0) -> float:

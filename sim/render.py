@@ -30,7 +30,7 @@ from lfd.io import atomic_path
 from sim.camera import CameraSpec, Projector, fixed_camera, task_camera
 from sim.errors import RenderError
 from sim.loop import FPS, frame_times
-from sim.overlay import FrameText, StaticLayer, draw_dynamic, draw_static, tile
+from sim.overlay import FrameText, StaticLayer, draw_dynamic, draw_frames, draw_static, tile
 
 WIDTH, HEIGHT = 640, 480
 
@@ -300,6 +300,8 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
 # ---------------------------------------------------------------- a whole run
 PUSH_ARROW_FRACTION = 0.35   # the push arrow is this fraction of the path's size long
 PATH_POINTS = 400            # most points per drawn path
+DEMO_FRAMES = 12             # a pose task's demonstrated tool frames drawn along its path
+FRAME_FRACTION = 0.08        # ... each axis this fraction of the path's size long (the live one twice)
 AUTO_FOVY_DEG = 25.0         # the chosen camera is a long lens: the hand near it is not blown up
 
 
@@ -352,7 +354,8 @@ def _frame_mocap(trace: Any, times: np.ndarray, nmocap: int) -> np.ndarray | Non
 def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np.ndarray,
                   path: str | os.PathLike, base: np.ndarray, qpos_adr: np.ndarray,
                   normal: np.ndarray | None = None, width: int = WIDTH, height: int = HEIGHT,
-                  fps: float = FPS, camera: CameraSpec = CameraSpec(), progress: bool = False) -> int:
+                  fps: float = FPS, camera: CameraSpec = CameraSpec(), progress: bool = False,
+                  demo_rotations: np.ndarray | None = None) -> int:
     """Write one MP4 of ``width`` x ``height`` with the panels tiled (``panel_grid``), each panel
     (width / columns) x (height / rows) pixels (rounded down to even numbers), all seen by the same
     camera (``sim.camera.task_camera`` over every panel's path, or ``camera``) and rendered by one
@@ -362,7 +365,10 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
     (``sim.overlay``) the demonstration ``demo_world`` (T, 3), the field's rollout, the robot's
     trace so far, the goal, the push arrow while the push acts (plus 0.1 s) and the point where
     it began, a legend, the title, the simulated time and the tracking error |p(t) - p_ref(t)|;
-    moving obstacles where the run had them (``RunTrace.mocap_pos``).
+    moving obstacles where the run had them (``RunTrace.mocap_pos``). A pose task
+    (``demo_rotations`` (T, 3, 3) given) also shows the demonstrated tool frame as small axes at
+    ``DEMO_FRAMES`` points along the demonstration and the robot's tool frame live (x red, y green,
+    z blue; from ``RunTrace.ee_rot``).
     qpos_adr : (n,) qpos addresses of the arm joints. Returns the number of frames.
     """
     if not panels:
@@ -379,6 +385,9 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
                                                                    if p.reference is not None]
     pts = np.concatenate(everything)
     span = float(np.max(np.ptp(pts, axis=0)))
+    if demo_rotations is not None:   # the camera frames the drawn tool frames' axes too
+        tips = np.asarray(demo_world)[:, None, :] + 2 * FRAME_FRACTION * span * np.swapaxes(demo_rotations, 1, 2)
+        pts = np.concatenate([pts, tips.reshape(-1, 3)[::7]])
     fovy = float(model.vis.global_.fovy)
     if camera.orbit is None and camera.name != "auto":
         cam = fixed_camera(model, camera.name)
@@ -389,6 +398,11 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
     data = mujoco.MjData(model)
     demo_d = decimate(np.asarray(demo_world), PATH_POINTS)
     layers = [StaticLayer(pw, ph) for _ in panels]
+    axes_len = FRAME_FRACTION * max(span, 0.05)
+    demo_frames = None
+    if demo_rotations is not None:
+        pick = np.unique(np.linspace(0, len(demo_world) - 1, DEMO_FRAMES).round().astype(int))
+        demo_frames = (np.asarray(demo_world)[pick], np.asarray(demo_rotations)[pick])
 
     def frames() -> Iterable[np.ndarray]:
         bar = tqdm(total=len(times), desc="video", unit="frame", disable=not progress, leave=False)
@@ -404,7 +418,7 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
                     if moved is not None:
                         data.mocap_pos[:] = moved[j]
                     mujoco.mj_kinematics(model, data)
-                    images.append(_panel_frame(r, data, cam, p, layer, demo_d, t, span))
+                    images.append(_panel_frame(r, data, cam, p, layer, demo_d, t, span, demo_frames, axes_len))
                 bar.update(1)
                 yield images[0] if len(images) == 1 else tile(images, cols)
         except BaseException:
@@ -420,10 +434,18 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
     return write_video(path, frames(), pw * cols, ph * rows, fps)
 
 
+def _frame_uv(proj: Projector, origins: np.ndarray, rotations: np.ndarray, length: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of tool frames at origins (F, 3) with rotations (F, 3, 3): origins (F, 2), axis tips (F, 3, 2)."""
+    tips = origins[:, None, :] + length * np.swapaxes(rotations, 1, 2)            # (F, 3 axes, 3)
+    return proj(origins), proj(tips.reshape(-1, 3)).reshape(len(origins), 3, 2)
+
+
 def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, panel: Panel,
-                 layer: StaticLayer, demo: np.ndarray, t: float, span: float) -> np.ndarray:
+                 layer: StaticLayer, demo: np.ndarray, t: float, span: float,
+                 demo_frames: tuple[np.ndarray, np.ndarray] | None = None, axes_len: float = 0.0) -> np.ndarray:
     """One panel's image at time t: the scene, the static layer (drawn on the first call), then
-    the overlays that change."""
+    the overlays that change (a pose task's live tool frame among them)."""
     ro = panel.trace
     image = r.render(data, cam)
     dt = float(ro.t[1] - ro.t[0])
@@ -432,6 +454,8 @@ def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, p
     if not hasattr(layer, "mask"):
         field_uv = None if panel.reference is None else proj(decimate(panel.reference, PATH_POINTS))
         draw_static(layer.image, proj(demo), field_uv, panel.title)
+        if demo_frames is not None:
+            draw_frames(layer.image, *_frame_uv(proj, demo_frames[0], demo_frames[1], axes_len), 2)
         layer.freeze()
     layer.stamp(image)
     trace = decimate(ro.ee[:k + 1], PATH_POINTS)
@@ -453,6 +477,8 @@ def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, p
     err = None if panel.reference is None else float(np.linalg.norm(ro.ee[k] - panel.reference[k]))
     goal = ro.goal_world if panel.goal_path is None else panel.goal_path[k]
     draw_dynamic(img, proj(trace), proj(goal[None])[0], push_uv, dot_uv, FrameText(panel.title, t, err))
+    if ro.ee_rot is not None:
+        draw_frames(img, *_frame_uv(proj, ro.ee[k][None], ro.ee_rot[k][None], 2.0 * axes_len), 4)
     return np.asarray(img)
 
 def _interrupted(e: BaseException) -> bool:

@@ -37,11 +37,11 @@ from dm_control.utils import rewards
 from dm_env import specs
 
 from lfd.field import goal_at, is_time_varying
-from robots import Kinematics, RobotModel, load_robot, solve_position_ik
+from robots import Kinematics, RobotModel, load_robot, solve_pose_ik
 from sim.controller import FieldController, Gains
 from sim.errors import PlacementError, SimError
 from sim.perturbations import Perturbation, Schedule, compile_schedule
-from sim.placement import IK_TOLERANCE_M, Placement
+from sim.placement import IK_TOLERANCE_M, IK_TOLERANCE_RAD, POSE_POSTURE_GAIN, Placement
 
 if TYPE_CHECKING:
     from lfd.demos import DemoSet
@@ -87,6 +87,10 @@ class ArmPhysics(dm_mujoco.Physics):
         """Tool position in world, shape (3,), from the MuJoCo site."""
         return self.data.site_xpos[self._ee_site].copy()
 
+    def ee_rotation(self) -> np.ndarray:
+        """Tool rotation in world, shape (3, 3), from the MuJoCo site."""
+        return self.data.site_xmat[self._ee_site].reshape(3, 3).copy()
+
 
 class FieldTrackingTask(control.Task):
     """Drive the tool with a task-space velocity action; see the module docstring.
@@ -126,6 +130,12 @@ class FieldTrackingTask(control.Task):
         self.perturbations = tuple(perturbations)
         self._nmocap = int(model.nmocap)
         self._start_nominal = np.asarray(start, dtype=np.float64) + self.schedule.start_offset_task
+        turn = self.schedule.start_turn_world
+        if placement.pose and np.any(turn != 0):   # the start's orientation turned by exp(theta u), world
+            import pinocchio as pin
+
+            rot = pin.exp3(turn) @ placement.rotation_to_world(self._start_nominal)
+            self._start_nominal = placement.to_task(placement.to_world(self._start_nominal), rot)
         self.start_task = self._start_nominal.copy()
         self.goal_task = np.asarray(goal, dtype=np.float64) + self.schedule.goal_offset_task
         self.goal_world = placement.to_world(self.goal_task)
@@ -136,16 +146,19 @@ class FieldTrackingTask(control.Task):
         self.field = field
         self._timed = timed
         self._shift = self.schedule.goal_offset_task.copy()
-        if rotation_ref is None and not robot.planar:
+        if placement.pose:    # the field gives the orientation
+            rotation_ref = None
+        elif rotation_ref is None and not robot.planar:
             kin = Kinematics(robot)
             kin.update(robot.q_home)
             rotation_ref = kin.ee_rotation().copy()
         self.rotation_ref = rotation_ref
-        q0, err = self._start_joints(self.start_task)
-        if not err <= IK_TOLERANCE_M:
+        q0, err, rot_err = self._start_joints(self.start_task)
+        if not (err <= IK_TOLERANCE_M and rot_err <= IK_TOLERANCE_RAD):
             p0 = placement.to_world(self.start_task)
+            miss = f"{err * 1e3:.1f} mm" if not err <= IK_TOLERANCE_M else f"{np.degrees(rot_err):.1f} deg"
             raise PlacementError(f"start point {np.round(p0, 3).tolist()} m is out of reach of "
-                                 f"'{robot.name}' (missed by {err * 1e3:.1f} mm)")
+                                 f"'{robot.name}' (missed by {miss})")
         self.q_start = q0
         self.controller = FieldController(robot, placement, control_dt, ik=ik,
                                           rotation_ref=rotation_ref, gains=gains, feedforward=feedforward,
@@ -157,9 +170,13 @@ class FieldTrackingTask(control.Task):
         v_max = V_MAX_M_S / placement.scale
         self._action_spec = specs.BoundedArray((placement.dim,), np.float64, -v_max, v_max, name="ee_velocity")
 
-    def _start_joints(self, x: np.ndarray) -> tuple[np.ndarray, float]:
-        """Joints, shape (n,), with the tool on task point x, shape (d,), and the IK miss (m)."""
-        return solve_position_ik(self.robot, self.placement.to_world(x), self.rotation_ref, q0=self.robot.q_home)
+    def _start_joints(self, x: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """Joints, shape (n,), with the tool on task point x, shape (d,) (a pose task: in its pose),
+        and the IK misses (m, rad)."""
+        if self.placement.pose:
+            return solve_pose_ik(self.robot, self.placement.to_world(x), self.placement.rotation_to_world(x),
+                                 q0=self.robot.q_home, posture=POSE_POSTURE_GAIN)
+        return solve_pose_ik(self.robot, self.placement.to_world(x), self.rotation_ref, q0=self.robot.q_home)
 
     def _draw_start(self) -> None:
         """A start uniform in the ball of ``start_radius`` around the nominal start (module docstring)."""
@@ -168,8 +185,8 @@ class FieldTrackingTask(control.Task):
             u = self._rng.normal(size=d)
             r = self.start_radius * self._rng.uniform() ** (1.0 / d)
             x = self._start_nominal + r * u / max(float(np.linalg.norm(u)), 1e-300)
-            q, err = self._start_joints(x)
-            if err <= IK_TOLERANCE_M:
+            q, err, rot_err = self._start_joints(x)
+            if err <= IK_TOLERANCE_M and rot_err <= IK_TOLERANCE_RAD:
                 self.start_task, self.q_start = x, q
                 return
         raise PlacementError(f"no reachable start found in {START_DRAWS} draws within {self.start_radius:g} "
@@ -199,7 +216,9 @@ class FieldTrackingTask(control.Task):
         if self.controller.uses_mj_dynamics:
             mujoco.mj_step1(model, data)
         q = data.qpos[self._qadr]
-        self.controller.measure(q)
+        p = self.controller.measure(q)
+        if self.placement.pose:   # the twist of a pose command is taken at the measured chart point
+            self.controller.to_task(p)
         self.apply(data, q, data.qvel[self._dadr], v, model)
 
     def after_step(self, physics: ArmPhysics) -> None:
@@ -234,7 +253,8 @@ class FieldTrackingTask(control.Task):
         - ``joint_positions`` (n,), ``joint_velocities`` (n,): arm joints in Pinocchio order;
         - ``ee_position`` (3,): the tool position in world (m, MuJoCo site), computed from the
           observed joints (``after_step`` runs the kinematics: equal to Pinocchio FK up to round-off);
-        - ``task_position`` (d,): the same point in task coordinates, x = A^T (p - o) / s;
+        - ``task_position`` (d,): the same point in task coordinates, x = A^T (p - o) / s (a pose
+          task: the chart point of the tool's pose, ``sim.placement``);
         - ``goal`` (d,): the goal in task coordinates (after a ``GoalShift``);
         - ``joint_limit`` (n,): 1.0 where the joint is outside [q_min, q_max], else 0.0;
         - ``field_velocity`` (d,), only with a ``field``: the field's velocity at ``task_position``
@@ -242,7 +262,7 @@ class FieldTrackingTask(control.Task):
         """
         q = physics.joint_positions()
         p = physics.ee_position()
-        x = self.placement.to_task(p)
+        x = self.placement.to_task(p, physics.ee_rotation()) if self.placement.pose else self.placement.to_task(p)
         obs = collections.OrderedDict(
             joint_positions=q, joint_velocities=physics.joint_velocities(), ee_position=p,
             task_position=x, goal=self.goal_task.copy(),
@@ -354,6 +374,16 @@ def _demo_defaults(robot: RobotModel, demos: str | DemoSet, demo_index: int, pla
     demo_set = load_demos(demos) if isinstance(demos, str) else demos
     if not 0 <= demo_index < demo_set.n_demos:
         raise SimError(f"demo index {demo_index} out of range: {demo_set.name} has {demo_set.n_demos} demos")
+    if demo_set.has_orientation:   # poses run where recorded, as chart points (sim.placement)
+        from lfd.pose import PoseChart, chart_demos
+
+        assert demo_set.goal_q is not None
+        chart = placement.chart if placement is not None and placement.chart is not None else \
+            PoseChart.at(demo_set.goal_q)
+        demo_set = chart_demos(demo_set, chart)
+        if placement is None:
+            placement = Placement.recorded(chart)
+            placement.check_reachable(robot, demo_set.x)
     if rotation_ref is None and not robot.planar:
         kin = Kinematics(robot)
         kin.update(robot.q_home)

@@ -151,7 +151,7 @@ def test_csv_specific_errors(tmp_path: Path) -> None:
     (tmp_path / "empty.csv").write_text("")
     with pytest.raises(DemoError, match=r"empty\.csv: empty file"):
         load_file(tmp_path / "empty.csv")
-    with pytest.raises(DemoError, match=r"demos must be 2-D or 3-D, got d=1"):
+    with pytest.raises(DemoError, match=r"demos must have 2 to 32 dimensions, got d=1"):
         load_file(_csv(tmp_path / "one.csv", _good(d=1)))
 
 
@@ -285,7 +285,7 @@ def test_crafted_payloads_are_model_errors(tmp_path: Path) -> None:
                      "a positive scale"),
         "goal.pt": ({**_payload(), "normalization": {"goal": [0.0], "scale": 1.0}}, "2 finite goal"),
         "nan.pt": (nan, "the model's weights contain NaN or inf"),
-        "dim.pt": ({**_payload(), "dim": 7}, "dim must be 2 or 3"),
+        "dim.pt": ({**_payload(), "dim": 40}, "dim must be an integer from 2 to 32"),
         "box.pt": ({**_payload(), "demo_box": [[0.0], [1.0]]}, "demo_box"),
         "oldbox.pt": ({**_payload(), "history": {"demo_box": [[0.0], [1.0]]}}, "demo_box"),
     }

@@ -72,3 +72,13 @@ def test_05_sweeps_pushes_from_eight_directions(workdir: Path) -> None:
     out = run_example("05_sweep.py", workdir)
     assert len([line for line in out.splitlines() if line.startswith("push ")]) == 8
     assert "recovered 8 of 8" in out
+
+
+def test_06_runs_a_recorded_pour_in_full_pose(workdir: Path) -> None:
+    out = run_example("06_poses.py", workdir)
+    report = json.loads((workdir / "out" / "06_poses" / "metrics.json").read_text())
+    runs = {r["scenario"]: r["metrics"] for r in report["runs"]}
+    assert set(runs) == {"none", "offset"} and "tracking" in out
+    for m in runs.values():
+        assert m["final_goal_error_m"] < 0.002 and m["final_goal_error_deg"] < 1.0
+        assert m["tracking_rmse_deg"] < 1.0 and m["joint_limit_violations"] == 0

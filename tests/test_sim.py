@@ -167,7 +167,7 @@ def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypa
     demos = lfd.spiral(n_demos=2, n_samples=60, duration=1.0)
     sink_field(demos).save(model)
     monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
-    diverging = lambda name, seed=0: (sim.JointVelocityNoise(std_rad_s=1e12),)  # noqa: E731
+    diverging = lambda name, seed=0, pose=False: (sim.JointVelocityNoise(std_rad_s=1e12),)  # noqa: E731
     monkeypatch.setattr(sim.pipeline, "scenario", diverging)
     monkeypatch.setattr(sim_experiment, "scenario", diverging)
     out = tmp_path / "out"

@@ -34,6 +34,8 @@ robot = load_robot("planar")
 demos = lfd.load_demos("spiral")
 exp = sim.Experiment(robot, demos)
 print("planar", robot.mj_model.nq, robot.name, exp.placement is not None)
+pour = lfd.load_demos("robottasks:pouring")   # RoboTasks9, shipped inside the wheel
+assert pour.has_orientation and pour.x.shape == (9, 1000, 3)
 panda = load_robot("panda")   # example-robot-data's files, the meshes from the user's cache
 print("panda", panda.name, len(panda.arm_joints))
 """
@@ -74,6 +76,9 @@ def test_wheel_installs_and_runs_without_the_checkout(tmp_path: Path) -> None:
     (wheel,) = dist.glob("lfd_arm-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     assert "robots/assets/planar_arm.xml" in names
+    assert {"lfd/assets/robottasks/pouring.npy", "lfd/assets/robottasks/LICENSE",
+            "lfd/assets/robottasks/README.md"} <= set(names)
+    assert not any(n.startswith("robots/assets/robottasks") for n in names)       # one copy of the data
     assert {"lfd/py.typed", "robots/py.typed", "sim/py.typed"} <= set(names)
 
     env_dir = tmp_path / "venv"

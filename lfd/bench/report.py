@@ -48,7 +48,8 @@ def _num(v: Any) -> float:
     return float(v) if v is not None else math.inf
 
 
-def _stats(values: list[float]) -> dict[str, float]:
+def stats(values: list[float]) -> dict[str, float]:
+    """The mean and median of ``values`` (NaN for none)."""
     a = np.asarray(values, dtype=np.float64)
     if len(a) == 0:
         return {"mean": math.nan, "median": math.nan}
@@ -104,22 +105,23 @@ def summarize(records: list[dict[str, Any]], learners: list[str]) -> dict[str, A
         s: dict[str, Any] = {"shapes": len(rows)}
         for split in ("train", "test"):
             s[split] = None if vals[0][split] is None else {
-                m: _stats([v[split][m] for v in vals]) for m in METRICS}
-        s["converged"] = _stats([v["converged"] for v in vals])
+                m: stats([v[split][m] for v in vals]) for m in METRICS}
+        s["converged"] = stats([v["converged"] for v in vals])
         grid = [v["spurious"] for v in vals if v["spurious"] is not None]
-        s["spurious"] = _stats(grid) if len(grid) == len(vals) else None
+        s["spurious"] = stats(grid) if len(grid) == len(vals) else None
         s["converged_perturbed"] = (sum(v["n_perturbed_ok"] for v in vals)
                                     / max(sum(v["n_perturbed"] for v in vals), 1))
         s["shapes_all_converged"] = sum(v["converged"] == 1.0 for v in vals)
-        s["train_time_s"] = {**_stats([v["train_time_s"] for v in vals]),
+        s["train_time_s"] = {**stats([v["train_time_s"] for v in vals]),
                              "total": float(sum(v["train_time_s"] for v in vals))}
-        s["step_time_us"] = _stats([v["step_time_us"] for v in vals])
+        s["step_time_us"] = stats([v["step_time_us"] for v in vals])
         s["cell_s_total"] = float(sum(v["cell_s"] for v in vals))
         out[learner] = s
     return out
 
 
-def _fmt(v: Any, spec: str) -> str:
+def fmt(v: Any, spec: str) -> str:
+    """A number for a report table with ``spec``: a dash for None or NaN, ``inf`` for infinity."""
     if v is None:
         return "—"
     v = float(v)
@@ -130,7 +132,8 @@ def _fmt(v: Any, spec: str) -> str:
     return format(v, spec)
 
 
-def _table(header: list[str], rows: list[list[str]]) -> str:
+def table(header: list[str], rows: list[list[str]]) -> str:
+    """A markdown table of ``header`` and ``rows`` (strings)."""
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
@@ -147,7 +150,7 @@ def summary_table(summary: dict[str, Any], split: str) -> str:
         if s[split] is None:
             continue
         row = [learner, str(s["shapes"])]
-        row += [f"{_fmt(s[split][m]['mean'], FORMATS[m])} / {_fmt(s[split][m]['median'], FORMATS[m])}"
+        row += [f"{fmt(s[split][m]['mean'], FORMATS[m])} / {fmt(s[split][m]['median'], FORMATS[m])}"
                 for m in ORDER]
         if split == "train":
             all_ok = f"{s['shapes_all_converged']}/{s['shapes']} shapes all"
@@ -155,10 +158,10 @@ def summary_table(summary: dict[str, Any], split: str) -> str:
                     f"{100 * s['converged_perturbed']:.1f}%",
                     "—" if s["spurious"] is None else f"{100 * s['spurious']['mean']:.1f}% / "
                                                        f"{100 * s['spurious']['median']:.1f}%",
-                    f"{_fmt(s['train_time_s']['mean'], '.2f')} / {_fmt(s['train_time_s']['median'], '.2f')}",
-                    f"{_fmt(s['step_time_us']['mean'], '.1f')} / {_fmt(s['step_time_us']['median'], '.1f')}"]
+                    f"{fmt(s['train_time_s']['mean'], '.2f')} / {fmt(s['train_time_s']['median'], '.2f')}",
+                    f"{fmt(s['step_time_us']['mean'], '.1f')} / {fmt(s['step_time_us']['median'], '.1f')}"]
         rows.append(row)
-    return _table(header, rows)
+    return table(header, rows)
 
 
 def shape_table(rows: dict[str, dict[str, Any]], shapes: list[str], split: str) -> str:
@@ -169,7 +172,7 @@ def shape_table(rows: dict[str, dict[str, Any]], shapes: list[str], split: str) 
         return lambda r: r[split][m]
 
     def formatter(m: str) -> Callable[[float], str]:
-        return lambda v: _fmt(v, FORMATS[m])
+        return lambda v: fmt(v, FORMATS[m])
 
     cols: list[tuple[str, Callable[[dict[str, Any]], float], Callable[[float], str]]] = [
         (LABELS[m], getter(m), formatter(m)) for m in ORDER]
@@ -177,13 +180,13 @@ def shape_table(rows: dict[str, dict[str, Any]], shapes: list[str], split: str) 
         cols += [("converged", lambda r: r["converged"], lambda v: f"{100 * v:.1f}%"),
                  ("spurious (35×35)", lambda r: math.nan if r["spurious"] is None else r["spurious"],
                   lambda v: "—" if math.isnan(v) else f"{100 * v:.1f}%"),
-                 ("train (s)", lambda r: r["train_time_s"], lambda v: _fmt(v, ".2f")),
-                 ("step (µs)", lambda r: r["step_time_us"], lambda v: _fmt(v, ".1f"))]
+                 ("train (s)", lambda r: r["train_time_s"], lambda v: fmt(v, ".2f")),
+                 ("step (µs)", lambda r: r["step_time_us"], lambda v: fmt(v, ".1f"))]
     body = [[shape] + [fmt(get(rows[shape])) for _, get, fmt in cols] for shape in shapes]
     for name, agg in (("**Mean**", np.mean), ("**Median**", np.median)):
         with np.errstate(invalid="ignore"):
             body.append([name] + [fmt(float(agg([get(rows[s]) for s in shapes]))) for _, get, fmt in cols])
-    return _table(["shape"] + [c[0] for c in cols], body)
+    return table(["shape"] + [c[0] for c in cols], body)
 
 
 def target_lines(summary: dict[str, Any]) -> list[str]:
@@ -203,7 +206,7 @@ def target_lines(summary: dict[str, Any]) -> list[str]:
         v = measured[key]
         ok = v <= bound if op == "<=" else v >= bound
         verdict = "met" if ok else "**NOT met**"
-        out.append(f"- {names[key]}: {_fmt(v, '.4g')} (target {op} {bound:g}): {verdict}")
+        out.append(f"- {names[key]}: {fmt(v, '.4g')} (target {op} {bound:g}): {verdict}")
     return out
 
 
@@ -219,8 +222,8 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
         worst = sorted(rows, key=lambda k: -rows[k]["train"]["dtw"])[:3]
         failing = [k for k in rows if rows[k]["converged"] < 1.0]
         text = (f"**{learner}** reproduces the demos of {s['shapes']} shapes with DTW "
-                f"{_fmt(tr['dtw']['mean'], '.0f')} (median {_fmt(tr['dtw']['median'], '.0f')}) and RMSE "
-                f"{_fmt(tr['rmse']['mean'], '.2f')} mm (median {_fmt(tr['rmse']['median'], '.2f')} mm); "
+                f"{fmt(tr['dtw']['mean'], '.0f')} (median {fmt(tr['dtw']['median'], '.0f')}) and RMSE "
+                f"{fmt(tr['rmse']['mean'], '.2f')} mm (median {fmt(tr['rmse']['median'], '.2f')} mm); "
                 f"{100 * s['converged']['mean']:.1f}% of all starts and "
                 f"{100 * s['converged_perturbed']:.1f}% of "
                 f"the perturbed starts end within {radius_mm:g} mm of the goal after {horizon_factor:g}x the "
@@ -247,8 +250,8 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
                      + ", ".join(fallback) + ".")
         if s["test"] is not None:
             te = s["test"]
-            text += (f" On held-out demos: DTW {_fmt(te['dtw']['mean'], '.0f')}, RMSE "
-                     f"{_fmt(te['rmse']['mean'], '.2f')} mm (means).")
+            text += (f" On held-out demos: DTW {fmt(te['dtw']['mean'], '.0f')}, RMSE "
+                     f"{fmt(te['rmse']['mean'], '.2f')} mm (means).")
         parts.append(text)
     if len(summary) > 1:
         best_dtw = min(summary, key=lambda k: summary[k]["train"]["dtw"]["mean"])
@@ -305,7 +308,7 @@ def figure_grid(records: list[dict[str, Any]], learner: str, shapes: list[str],
         ax.set_xticks([])
         ax.set_yticks([])
         dtw = recs[shape]["train"]["dtw"]
-        ax.set_title(f"{shape}  DTW {_fmt(dtw, '.0f')}", fontsize=8)
+        ax.set_title(f"{shape}  DTW {fmt(dtw, '.0f')}", fontsize=8)
     fig.suptitle(f"LASA, {learner}: demos (black), rollouts from demo starts (red), ring starts (blue), "
                  "box starts (green); grey: streamlines", fontsize=9)
     fig.tight_layout()
@@ -432,7 +435,7 @@ def _summary_lines(records: list[dict[str, Any]], summary: dict[str, Any], rows_
     md += tl if tl else ["The contraction learner was not part of this run."]
     md += ["", "Reference points measured by peers on six shapes (true DTW, every 4th sample, "
            "one torch thread):", ""]
-    md.append(_table(["method", "train (s/shape)", "DTW", "RMSE (mm)", "step (µs)", "converged"],
+    md.append(table(["method", "train (s/shape)", "DTW", "RMSE (mm)", "step (µs)", "converged"],
                      [[name, f"{r['train_time_s']:g}", f"{r['dtw']:g}", f"{r['rmse']:g}",
                        f"{r['step_time_us']:g}", f"{100 * r['converged']:g}%"]
                       for name, r in PEER_REFERENCES.items()]))

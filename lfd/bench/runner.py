@@ -23,6 +23,7 @@ import io
 import json
 import time
 import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -191,20 +192,25 @@ def _worker_cell(cell: Cell) -> tuple[dict[str, Any], bytes]:
     return compute_cell(cell)
 
 
-def run_cells(cells: list[Cell], cache: str | Path, workers: int = 1, fresh: bool = False,
-              progress: bool = True, executor: str = "local", address: str | None = None) -> BenchResult:
+def run_cells(cells: Sequence[Any], cache: str | Path, workers: int = 1, fresh: bool = False,
+              progress: bool = True, executor: str = "local", address: str | None = None,
+              compute: Callable[[Any], tuple[dict[str, Any], bytes]] | None = None,
+              desc: str = "lasa") -> BenchResult:
     """Run every cell not already in ``cache`` (all of them with ``fresh``), ``workers`` at a
     time, on ``executor`` (module docstring; ``local`` with 1 worker: in this process, with one
     torch thread; ``ray`` with ``address``: on that cluster). A bad cache entry is computed again
     after one ``RuntimeWarning`` naming it. A cell whose worker process dies is tried again, up to
     ``MAX_ATTEMPTS`` times, then listed in ``BenchResult.failed`` and left out of the records and
-    the cache. Returns records in the order of ``cells``."""
+    the cache. ``compute`` (default: a LASA cell's) maps a cell (with ``stem`` and ``learner``, as
+    ``Cell``) to (record, npz bytes); a record with an ``error`` is a cell its learner refused: listed
+    in ``failed`` (``refused``), not cached, so a later run tries it again. Returns records in the
+    order of ``cells``."""
     address = check_executor(executor, address)
     cache = Path(cache)
     cache.mkdir(parents=True, exist_ok=True)
     done: dict[str, dict[str, Any]] = {}
     cached: list[str] = []
-    todo: list[Cell] = []
+    todo: list[Any] = []
     for c in cells:
         rec, problem = (None, None) if fresh else read_cached(c, cache)
         if problem:
@@ -218,12 +224,15 @@ def run_cells(cells: list[Cell], cache: str | Path, workers: int = 1, fresh: boo
     rank = {name: i for i, name in enumerate(LEARNER_ORDER)}
     todo.sort(key=lambda c: rank.get(c.learner, len(rank)))
     failed: list[dict[str, Any]] = []
-    bar = tqdm(total=len(cells), initial=len(cached), desc="lasa", unit="cell", disable=not progress)
+    bar = tqdm(total=len(cells), initial=len(cached), desc=desc, unit="cell", disable=not progress)
 
     def finished(i: int, result: tuple[dict[str, Any], bytes], attempts: int) -> None:
         c = todo[i]
         record, npz = result
-        done[c.stem] = store_cell(c, cache, {**record, "attempts": attempts}, npz)
+        if "error" in record:
+            failed.append({"cell": c.stem, "reason": record["error"], "attempts": attempts, "refused": True})
+        else:
+            done[c.stem] = store_cell(c, cache, {**record, "attempts": attempts}, npz)
         bar.set_postfix_str(c.stem)
         bar.update()
 
@@ -233,7 +242,7 @@ def run_cells(cells: list[Cell], cache: str | Path, workers: int = 1, fresh: boo
 
     try:
         if todo:
-            run_parallel(_worker_cell, todo, workers, executor, address, finished, on_failed=lost)
+            run_parallel(compute or _worker_cell, todo, workers, executor, address, finished, on_failed=lost)
     finally:
         bar.close()
     return BenchResult([done[c.stem] for c in cells if c.stem in done], [c.stem for c in todo], cached,

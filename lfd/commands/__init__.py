@@ -17,7 +17,8 @@ if TYPE_CHECKING:  # imported when a command runs, so that ``lfd --help`` stays 
     from lfd.field import VelocityField
 
 MODEL_HELP = "model file written by 'lfd train'"
-DEMOS_HELP = "spiral, spiral3d, lasa:NAME or a .csv/.npz file"
+DEMOS_HELP = ("spiral, spiral3d, lasa:NAME, robottasks:TASK, bag:PATH:/topic[:PARENT:CHILD] "
+              "or a .csv/.npz file")
 
 
 def add_model_and_demos(p: argparse.ArgumentParser) -> None:
@@ -28,12 +29,22 @@ def add_model_and_demos(p: argparse.ArgumentParser) -> None:
 
 
 def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False) -> tuple[VelocityField, DemoSet]:
-    """Load a model file and a demo SPEC, and check that their dimensions agree."""
+    """Load a model file and a demo SPEC, and check that their dimensions agree. Demos of poses for a
+    pose model come back as the model's chart points (``lfd.pose.chart_demos``, shape (N, T, 6): metres,
+    and metres per ``ROTATION_LENGTH`` of turn), which is what the model's field maps."""
     from lfd.demos import load_demos
     from lfd.learners import load
 
     field = load(model_path, allow_nonfinite)
     demos = load_demos(spec)
+    if (field.chart is not None) != demos.has_orientation:
+        kind = "poses" if field.chart is not None else "positions"
+        raise DemoError(f"{demos.name}: the model {model_path} is trained on {kind}, the demos are "
+                        f"{'poses' if demos.has_orientation else 'positions'}")
+    if field.chart is not None:
+        from lfd.pose import chart_demos
+
+        demos = chart_demos(demos, field.chart)
     if demos.dim != field.dim:
         raise DemoError(f"{demos.name}: demos are {demos.dim}-D but the model {model_path} is "
                         f"{field.dim}-D")

@@ -156,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
     loss_text = f"final loss {loss[-1]:.4g}" if loss else "no loss recorded"
     if field.history.get("stopped_nonfinite"):
         loss_text += " (stopped on a non-finite loss: best model so far kept)"
+    kind = "poses" if demos.has_orientation else f"{demos.dim}-D"
     print(f"trained {field.learner} on {demos.name} ({demos.n_demos} demos x {demos.n_samples} "
-          f"samples, {demos.dim}-D): {loss_text}, {field.history.get('train_time_s', 0.0):.1f} s, "
+          f"samples, {kind}): {loss_text}, {field.history.get('train_time_s', 0.0):.1f} s, "
           f"saved {args.out}")
     return 0

@@ -35,7 +35,7 @@ def get_learner(name: str) -> type[Learner]:
 
 def normalize_demos(demos: DemoSet, norm: Normalization) -> DemoSet:
     """The same demos in normalised coordinates x_n = (x - goal) / s."""
-    return DemoSet(demos.t, norm.to_norm(demos.x), name=demos.name)
+    return DemoSet(demos.t, norm.to_norm(demos.x), name=demos.name, end_tolerance=demos.end_tolerance)
 
 
 MAX_SEED = 9_223_372_036_854_775_807  # 2^63 - 1, a literal (``lfd.commands.seed`` reads it unimported);
@@ -56,11 +56,18 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
         raise ConfigError(f"seed must be an integer between 0 and 2^63 - 1, got {str(seed)[:40]}")
     cls = get_learner(learner)
-    config = cls.make_config(**options)
-    n_params = cls.parameter_count(demos.dim, config)
+    config = cls.make_config(**effective_options(learner, demos, options))
+    n_params = cls.parameter_count(6 if demos.has_orientation else demos.dim, config)
     if n_params is not None and n_params > MAX_PARAMETERS:
         raise ConfigError(f"{learner}: the model would have {n_params:,} parameters, more than the "
                           f"limit of {MAX_PARAMETERS:,}; use smaller layers")
+    chart = None
+    if demos.has_orientation:   # poses: the same learner on the chart's R^6 (lfd.pose, Eq. (P1))
+        from lfd.pose import PoseChart, chart_demos
+
+        assert demos.goal_q is not None
+        chart = PoseChart.at(demos.goal_q)
+        demos = chart_demos(demos, chart)
     norm = Normalization.from_points(demos.x, demos.goal)
     torch.manual_seed(seed)
     module = cls.build(demos.dim, config)
@@ -70,7 +77,25 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
         _check_trained(learner, module, history)
     history = {"train_time_s": time.perf_counter() - t0, "seed": seed, **history}
     return cls.field_class(module, norm, learner, dataclasses.asdict(config), history,
-                           demo_box=demos.bounds())
+                           demo_box=demos.bounds(), chart=chart)
+
+
+def effective_options(learner: str, demos: DemoSet, options: dict[str, Any]) -> dict[str, Any]:
+    """The options ``train`` fits with: ``options``, and for poses the tracking learner's
+    ``end_at_goal`` (poses end at different orientations; the reference must end at the goal pose,
+    Eq. (T1b)) unless given."""
+    if demos.has_orientation and learner == "tracking":
+        return {"end_at_goal": True, **options}
+    return dict(options)
+
+
+def _chart(entry: dict[str, Any] | None) -> Any:
+    """The PoseChart of a model file's ``pose_chart`` entry, or None."""
+    if entry is None:
+        return None
+    from lfd.pose import PoseChart
+
+    return PoseChart.from_dict(entry)
 
 
 def _check_trained(learner: str, module: torch.nn.Module, history: dict[str, Any]) -> None:
@@ -104,7 +129,7 @@ def load(path: str, allow_nonfinite: bool = False) -> VelocityField:
         module.load_state_dict(payload["state_dict"])
         return cls.field_class(module, Normalization.from_dict(payload["normalization"]), cls.name,
                                dataclasses.asdict(config), payload.get("history") or {},
-                               demo_box=payload.get("demo_box"))
+                               demo_box=payload.get("demo_box"), chart=_chart(payload.get("pose_chart")))
     except Exception as e:  # noqa: BLE001  whatever a crafted config does to build: a bad file
         text = str(e).strip()
         reason = text.splitlines()[0][:200] if text else type(e).__name__

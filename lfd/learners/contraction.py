@@ -338,9 +338,10 @@ class ContractionLearner(Learner):
     @classmethod
     def parameter_count(cls, dim: int, config: ContractionConfig) -> int:
         """Parameters of ``build``: per flow pair a swirl (centre d, Theta and widths 2 x
-        SWIRL_COMPONENTS, axis 3 for d = 3) and a block (W1, b1, W2: H (2 d + 1)), the budget split
-        2 per pair, then S (d^2) and, with damping, L (d^2)."""
-        per_pair = dim + 2 * SWIRL_COMPONENTS + (3 if dim == 3 else 0) + config.hidden * (2 * dim + 1) + 2
+        SWIRL_COMPONENTS, axis 3 for d = 3, plane 2 d for d >= 4) and a block (W1, b1, W2: H (2 d + 1)),
+        the budget split 2 per pair, then S (d^2) and, with damping, L (d^2)."""
+        generator = 3 if dim == 3 else 2 * dim if dim >= 4 else 0
+        per_pair = dim + 2 * SWIRL_COMPONENTS + generator + config.hidden * (2 * dim + 1) + 2
         return config.layers * per_pair + dim * dim * (2 if config.damping else 1)
 
     @classmethod

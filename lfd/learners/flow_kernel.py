@@ -117,8 +117,11 @@ def _left_multiply(step: np.ndarray, jac: np.ndarray, tmp: np.ndarray) -> None: 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
 def _solve_small(jac: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """out (d,) <- jac^-1 b for d = 2 or 3 by Cramer's rule (J_phi is well conditioned by
-    construction: its singular values lie in [s_lo, s_hi], Eq. (F4))."""
+    """out (d,) <- jac^-1 b: for d = 2 or 3 by Cramer's rule (J_phi is well conditioned by
+    construction: its singular values lie in [s_lo, s_hi], Eq. (F4)), above by LAPACK's LU solve."""
+    if jac.shape[0] > 3:
+        out[:] = np.linalg.solve(jac, b)
+        return
     if jac.shape[0] == 2:
         det = jac[0, 0] * jac[1, 1] - jac[0, 1] * jac[1, 0]
         out[0] = (b[0] * jac[1, 1] - jac[0, 1] * b[1]) / det

@@ -91,16 +91,19 @@ class LayerBound:
 class BoundedFlow(nn.Module):
     """phi of Eqs. (F1)-(F4): ``layers`` pairs (swirl, residual block), budget log sqrt(KAPPA).
 
-    dim : d in {2, 3}; hidden : H of a block; window : R; max_condition : KAPPA (inf allowed:
+    dim : d >= 2; hidden : H of a block; window : R; max_condition : KAPPA (inf allowed:
     each layer then gets its own cap, MAX_BLOCK_LIP for blocks and slope 20 for swirls).
+    A swirl turns the plane of J90 (d = 2), about a learned axis (d = 3), or in a learned 2-plane
+    span(a, b) with generator K = b a^T - a b^T (d >= 4; a, b orthonormalised from two learned
+    vectors); every K has |K z| <= |z| and K z orthogonal to z, which is all Eq. (F2) uses.
     A fresh flow is the identity (Theta = 0, W2 = 0). Draws from torch's global generator.
     """
 
     def __init__(self, dim: int, layers: int, hidden: int, window: float, max_condition: float,
                  length_scale: float = 0.5) -> None:
         super().__init__()
-        if dim not in (2, 3):
-            raise ValueError(f"the flow supports d = 2 or 3, got {dim}")
+        if dim < 2:
+            raise ValueError(f"the flow needs d >= 2, got {dim}")
         self.dim, self.n_pairs, self.hidden = dim, layers, hidden
         self.window = float(window)
         self.log_budget = 0.5 * math.log(max_condition) if math.isfinite(max_condition) else math.inf
@@ -110,6 +113,7 @@ class BoundedFlow(nn.Module):
         init = (torch.tensor([0.2, 0.4, 0.8, 1.6]) - RHO_MIN) / (RHO_MAX - RHO_MIN)
         self.rho_logit = nn.Parameter(torch.logit(init).repeat(layers, 1))
         self.axis = nn.Parameter(torch.randn(layers, 3)) if dim == 3 else None
+        self.plane = nn.Parameter(torch.randn(layers, 2, dim)) if dim >= 4 else None
         # residual blocks
         self.w1 = nn.Parameter(torch.randn(layers, hidden, dim) / length_scale)
         self.b1 = nn.Parameter(4.0 * torch.rand(layers, hidden) - 2.0)
@@ -149,6 +153,8 @@ class BoundedFlow(nn.Module):
                "h2": TANH2_MAX * alpha * n2 * n1 * n1}
         if self.axis is not None:
             out["axis"] = self.axis / torch.sqrt((self.axis ** 2).sum(1, keepdim=True) + _EPS)
+        if self.plane is not None:
+            out["gen"] = plane_generators(self.plane)
         return out
 
     def bounds(self) -> list[LayerBound]:
@@ -180,18 +186,23 @@ class BoundedFlow(nn.Module):
         cs, sn = torch.cos(ang), torch.sin(ang)
         if self.dim == 2:
             return torch.stack([torch.stack([cs, -sn], -1), torch.stack([sn, cs], -1)], -2)
-        a = p["axis"][k]
-        kk = a.new_zeros(3, 3)
-        kk = torch.stack([torch.stack([a.new_zeros(()), -a[2], a[1]]), torch.stack([a[2], a.new_zeros(()), -a[0]]),
-                          torch.stack([-a[1], a[0], a.new_zeros(())])])
-        eye = torch.eye(3, dtype=a.dtype)
+        if self.dim == 3:
+            a = p["axis"][k]
+            kk = torch.stack([torch.stack([a.new_zeros(()), -a[2], a[1]]),
+                              torch.stack([a[2], a.new_zeros(()), -a[0]]),
+                              torch.stack([-a[1], a[0], a.new_zeros(())])])
+        else:
+            kk = p["gen"][k]
+        eye = torch.eye(self.dim, dtype=kk.dtype)
         return eye + sn[:, None, None] * kk + (1 - cs)[:, None, None] * (kk @ kk)
 
     def _generator(self, p: dict[str, torch.Tensor], k: int, z: torch.Tensor) -> torch.Tensor:
-        """K z: J90 z (d = 2) or a x z (d = 3), shape (B, d)."""
+        """K z: J90 z (d = 2), a x z (d = 3) or the plane generator's K z (d >= 4), shape (B, d)."""
         if self.dim == 2:
             return torch.stack([-z[:, 1], z[:, 0]], -1)
-        return torch.cross(p["axis"][k].expand_as(z), z, dim=-1)
+        if self.dim == 3:
+            return torch.cross(p["axis"][k].expand_as(z), z, dim=-1)
+        return z @ p["gen"][k].T
 
     def _angle(self, p: dict[str, torch.Tensor], k: int, r2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """theta(r) and q(r) = theta'(r) / r for squared radii r2 (B,)."""
@@ -267,8 +278,21 @@ class BoundedFlow(nn.Module):
             if d == 3:
                 a = p["axis"][k]
                 item["K"] = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+            elif d >= 4:
+                item["K"] = np.ascontiguousarray(p["gen"][k])
             out.append(item)
         return out
+
+
+def plane_generators(plane: torch.Tensor) -> torch.Tensor:
+    """K_k = b a^T - a b^T, shape (L, d, d), from two vectors per layer, plane of shape (L, 2, d):
+    a = u / |u|, b = the unit part of v orthogonal to a (Gram-Schmidt). K_k^3 = -K_k, so
+    exp(ang K) = I + sin(ang) K + (1 - cos(ang)) K^2 (Rodrigues), a rotation in span(a, b)."""
+    u, v = plane[:, 0], plane[:, 1]
+    a = u / torch.sqrt((u * u).sum(1, keepdim=True) + _EPS)
+    w = v - (v * a).sum(1, keepdim=True) * a
+    b = w / torch.sqrt((w * w).sum(1, keepdim=True) + _EPS)
+    return b[:, :, None] * a[:, None, :] - a[:, :, None] * b[:, None, :]
 
 
 def bounded_flow_numpy(params: list[dict[str, np.ndarray | float]], x: np.ndarray

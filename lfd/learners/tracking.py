@@ -49,6 +49,7 @@ from lfd.validate import check_bools, check_ints, check_positive
 DEFAULT_RATE = 3.0            # K, 1/s
 ERROR_FLOOR = 1e-5            # normalised units: Eq. (T5) is checked as |e(t)| <= bound + floor (RK4 error)
 PHASE_END = 0.01              # Eq. (T4): the phase slows linearly over its last 1% and stops at 1 exactly
+END_BLEND = 0.2               # Eq. (T1b): with end_at_goal, the reference blends onto the goal over this last part
 CONTRACTION_PROPERTY = (
     "for any phase law s(t), the tracking error e = x - r(s) obeys de/dt = -K e, so "
     "|x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t); for a given phase signal the x-subsystem "
@@ -69,6 +70,9 @@ class TrackingConfig:
     condition_start : condition the reference on the start, Eq. (T2)
     start_noise : sigma of Eq. (T2), normalised units
     start_radius : rho of Eq. (T2a), the Mahalanobis radius beyond which the offset is clamped (inf: never)
+    end_at_goal : blend the reference onto the goal over the last ``END_BLEND`` of the phase, Eq. (T1b):
+        r(1 | x0) is then the goal exactly, for every start (``lfd.train`` sets it for poses, whose
+        demos end at different orientations)
     """
 
     rate: float = DEFAULT_RATE
@@ -79,11 +83,12 @@ class TrackingConfig:
     condition_start: bool = True
     start_noise: float = 0.02
     start_radius: float = 3.0
+    end_at_goal: bool = False
 
     def __post_init__(self) -> None:
         check_positive(self, ("rate", "phase_tolerance", "start_noise"), to_float=True)
         check_ints(self, (("knots", 1, None), ("table", 16, None)))
-        check_bools(self, ("phase_stop", "condition_start"))
+        check_bools(self, ("phase_stop", "condition_start", "end_at_goal"))
         check_positive(self, ("start_radius",), to_float=True, allow_inf=True)
 
 
@@ -433,6 +438,8 @@ class TrackingLearner(Learner):
             inv = prec = np.linalg.inv(c00 + config.start_noise ** 2 * np.eye(d))
             gain = np.einsum("nmi,nj->mij", dev, dev[:, 0]) / (n - 1) @ inv
             dgain = np.einsum("nmi,nj->mij", ddev, dev[:, 0]) / (n - 1) @ inv
+        if config.end_at_goal:
+            ref, dref, gain, dgain = _end_at_goal(phases, ref, dref, gain, dgain)
         with torch.no_grad():
             module.ref.copy_(torch.tensor(ref))
             module.dref.copy_(torch.tensor(dref))
@@ -448,6 +455,22 @@ class TrackingLearner(Learner):
         loss = float(np.mean(np.sum((demos.x - r_at) ** 2, -1)))
         return {"loss": [loss], "spline_rmse": float(np.sqrt(np.mean(np.sum((demos.x - own) ** 2, -1)))),
                 "spread": loss, "iterations": 1, "interrupted": False, "stopped_nonfinite": False}
+
+
+def _end_at_goal(phases: np.ndarray, ref: np.ndarray, dref: np.ndarray, gain: np.ndarray, dgain: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. (T1b): r <- r - w(s) r(1) and G <- (1 - w(s)) G with the quintic smoothstep w, 0 before
+    1 - END_BLEND and 1 at s = 1 (C2 in s), so that r(1 | x0) = 0, the goal in normalised units;
+    r' and G' follow by the product rule. phases (M,), ref and dref (M, d), gain and dgain (M, d, d)."""
+    u = np.clip((phases - (1.0 - END_BLEND)) / END_BLEND, 0.0, 1.0)
+    w = u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
+    dw = 30.0 * u * u * (1.0 - u) ** 2 / END_BLEND
+    end = ref[-1].copy()
+    ref = ref - w[:, None] * end
+    dref = dref - dw[:, None] * end
+    dgain = (1.0 - w)[:, None, None] * dgain - dw[:, None, None] * gain
+    gain = (1.0 - w)[:, None, None] * gain
+    return ref, dref, gain, dgain
 
 
 # ---------------------------------------------------------------- numerical check of Eq. (T5)

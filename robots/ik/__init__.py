@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from robots.errors import RobotError
-from robots.ik.position import solve_position_ik
+from robots.ik.position import solve_pose_ik, solve_position_ik
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
@@ -72,4 +72,4 @@ class DifferentialIK:
         return self._impl.solve(np.asarray(q, dtype=float), np.asarray(twist, dtype=float), float(dt), kin)
 
 
-__all__ = ["DifferentialIK", "IK_BACKENDS", "solve_position_ik"]
+__all__ = ["DifferentialIK", "IK_BACKENDS", "solve_pose_ik", "solve_position_ik"]

@@ -14,9 +14,10 @@ _RESTARTS = 8          # extra seeded starts when the first one fails
 
 
 def _descend(kin: Kinematics, robot: RobotModel, position: np.ndarray, rotation: np.ndarray | None, rows: np.ndarray,
-             q: np.ndarray, tol: float, max_iters: int) -> tuple[np.ndarray, float, float]:
-    """Damped Gauss-Newton from q: dq = J^T (J J^T + lambda^2 I)^-1 e, q <- clip(q + dq, q_min, q_max);
-    e = [p* - p; log(R* R^T)] restricted to ``rows``. Returns (q, position error [m], rotation error [rad])."""
+             q: np.ndarray, tol: float, max_iters: int, posture: float = 0.0) -> tuple[np.ndarray, float, float]:
+    """Damped Gauss-Newton from q: dq = J# e + posture (I - J# J) (q_home - q), J# = J^T (J J^T + lambda^2 I)^-1,
+    q <- clip(q + dq, q_min, q_max); e = [p* - p; log(R* R^T)] restricted to ``rows``. Returns (q, position
+    error [m], rotation error [rad])."""
     eye = np.eye(len(rows))
     for _ in range(max_iters + 1):
         kin.update(q)
@@ -30,7 +31,11 @@ def _descend(kin: Kinematics, robot: RobotModel, position: np.ndarray, rotation:
         if pos_err < tol and rot_err < tol:
             break
         jac = kin.ee_jacobian()[rows]
-        dq = jac.T @ np.linalg.solve(jac @ jac.T + _DAMPING2 * eye, e)
+        if posture:
+            z = posture * (robot.q_home - q)
+            dq = z + jac.T @ np.linalg.solve(jac @ jac.T + _DAMPING2 * eye, e - jac @ z)
+        else:
+            dq = jac.T @ np.linalg.solve(jac @ jac.T + _DAMPING2 * eye, e)
         step = np.max(np.abs(dq))
         if step > _MAX_STEP:
             dq *= _MAX_STEP / step
@@ -47,6 +52,17 @@ def solve_position_ik(robot: RobotModel, position: np.ndarray, rotation: np.ndar
     the best (q, position error in m). For a planar arm only x, y count (the tool stays in its plane). An
     unreachable target is not an error here: the caller compares the returned error with its tolerance.
     """
+    q, pos_err, _ = solve_pose_ik(robot, position, rotation, q0, tol, max_iters)
+    return q, pos_err
+
+
+def solve_pose_ik(robot: RobotModel, position: np.ndarray, rotation: np.ndarray | None = None,
+                  q0: np.ndarray | None = None, tol: float = 1e-6,
+                  max_iters: int = 500, posture: float = 0.0) -> tuple[np.ndarray, float, float]:
+    """As ``solve_position_ik``, returning (q (n,), position error [m], rotation error [rad]); the
+    rotation error is 0 without a ``rotation``. ``posture`` > 0 pulls the redundant joints toward
+    q_home in the task's null space at that gain per iteration (the control loop's IK does the same),
+    so a path followed warm-started stays away from the joint limits where it can."""
     kin = Kinematics(robot)
     position = np.asarray(position, dtype=float)
     rows = np.array([0, 1] if robot.planar else [0, 1, 2])
@@ -54,12 +70,14 @@ def solve_position_ik(robot: RobotModel, position: np.ndarray, rotation: np.ndar
         rotation = np.asarray(rotation, dtype=float)
         rows = np.concatenate([rows, [5] if robot.planar else [3, 4, 5]])
     start = np.asarray(robot.q_home if q0 is None else q0, dtype=float)
-    best = _descend(kin, robot, position, rotation, rows, np.clip(start, robot.q_min, robot.q_max), tol, max_iters)
+    best = _descend(kin, robot, position, rotation, rows, np.clip(start, robot.q_min, robot.q_max), tol, max_iters,
+                    posture)
     rng = np.random.default_rng(0)
     for _ in range(_RESTARTS):
         if best[1] < tol and best[2] < tol:
             break
-        trial = _descend(kin, robot, position, rotation, rows, rng.uniform(robot.q_min, robot.q_max), tol, max_iters)
+        trial = _descend(kin, robot, position, rotation, rows, rng.uniform(robot.q_min, robot.q_max), tol, max_iters,
+                         posture)
         if trial[1] + trial[2] < best[1] + best[2]:
             best = trial
-    return best[0], best[1]
+    return best

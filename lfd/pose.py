@@ -1,0 +1,205 @@
+"""Orientations as a chart at the goal: poses (x, q) in R^3 x S^3 as points z of R^6.
+
+A pose field learns its motion in the log chart of SO(3) at the goal orientation R_g (docs/equations.md,
+Eqs. (P1)-(P4)):
+
+    Eq. (P1): z = (x, l r),  r = log(R_g^T R) in R^3,  |r| = the geodesic angle from R to R_g [rad],
+    Eq. (P2): R = R_g exp(r)  (the inverse map, defined for every r in R^3),
+    Eq. (P3): omega = R J_r(r) r_dot  (the world angular velocity of z_dot; J_r: SO(3)'s right
+              Jacobian, Pinocchio's ``Jexp3``),
+    Eq. (P4): angle(R_1, R_2) = |log(R_1^T R_2)| <= |r_1 - r_2|  (SO(3) has non-negative curvature, so its
+              exponential map at R_g does not increase distances),
+
+with l = ``ROTATION_LENGTH`` metres per radian, so that one learner's single scale fits positions and
+turns alike. Every learner then learns a field on R^6 as it would on positions, and a pose field is
+that field with its ``PoseChart``. The chart is one-to-one for angles below pi; at the goal's antipode
+(a half turn away, the cut locus) log jumps, which is the known obstruction: no continuous field on
+SO(3) has a globally attracting equilibrium.
+
+Quaternions are (w, x, y, z), scalar first, as in the data sets; a quaternion and its negative are
+the same orientation (the double cover S^3 -> SO(3)). The maps use Pinocchio's ``log3``, ``exp3`` and
+``Jexp3``; conversions between quaternions and matrices use SciPy's ``Rotation``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pinocchio as pin
+from scipy.spatial.transform import Rotation
+
+if TYPE_CHECKING:
+    from lfd.demos import DemoSet
+
+#: metres of chart per radian of turn (Eq. (P1)): one degree weighs as much as 1.75 mm
+ROTATION_LENGTH = 0.1
+#: a quaternion whose norm is further than this from 1 is not a rotation (a near one is renormalised)
+UNIT_TOLERANCE = 0.01
+
+
+def quaternion_matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices of unit quaternions (w, x, y, z): q of shape (..., 4) -> shape (..., 3, 3)."""
+    q = np.asarray(q, dtype=np.float64)
+    flat = q.reshape(-1, 4)
+    if not len(flat):
+        return np.zeros(q.shape[:-1] + (3, 3))
+    return Rotation.from_quat(flat, scalar_first=True).as_matrix().reshape(q.shape[:-1] + (3, 3))
+
+
+def matrix_quaternions(rot: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w, x, y, z) with w >= 0 of rotation matrices: (..., 3, 3) -> (..., 4)."""
+    rot = np.asarray(rot, dtype=np.float64)
+    flat = rot.reshape(-1, 3, 3)
+    if not len(flat):
+        return np.zeros(rot.shape[:-2] + (4,))
+    out = Rotation.from_matrix(flat).as_quat(canonical=True, scalar_first=True)
+    return out.reshape(rot.shape[:-2] + (4,))
+
+
+def continuous(q: np.ndarray) -> np.ndarray:
+    """q, shape (T, 4), with signs flipped so that consecutive quaternions have q_k . q_(k-1) >= 0
+    (q and -q are one orientation: the sequence becomes continuous on S^3)."""
+    q = np.array(q, dtype=np.float64)
+    flips = np.cumsum(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0) % 2
+    q[1:][flips == 1] *= -1.0
+    return q
+
+
+def mean_quaternion(q: np.ndarray, iterations: int = 50) -> np.ndarray:
+    """The Karcher (geodesic) mean of unit quaternions, q of shape (K, 4): the rotation R_m with
+    sum_i log(R_m^T R_i) = 0, found by R_m <- R_m exp(mean_i log(R_m^T R_i)) from the chordal mean (the
+    eigenvector of sum q q^T with the largest eigenvalue); w >= 0; shape (4,). So the chart at the
+    mean (Eq. (P1)) puts the mean of the rotation coordinates at 0, to round-off."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
+    _, vecs = np.linalg.eigh(q.T @ q)
+    rm = quaternion_matrices(vecs[:, -1])
+    rots = quaternion_matrices(q)
+    for _ in range(iterations):
+        step = np.mean([pin.log3(rm.T @ r) for r in rots], axis=0)
+        rm = rm @ pin.exp3(step)
+        if float(np.linalg.norm(step)) < 1e-15:
+            break
+    return matrix_quaternions(rm)
+
+
+def geodesic_angle(r1: np.ndarray, r2: np.ndarray) -> np.ndarray:
+    """angle(R_1, R_2) = |log(R_1^T R_2)| [rad] of Eq. (P4): rotations of shape (..., 3, 3) -> shape (...)."""
+    rel = np.einsum("...ji,...jk->...ik", np.asarray(r1, dtype=np.float64), np.asarray(r2, dtype=np.float64))
+    c = np.clip(0.5 * (np.trace(rel, axis1=-2, axis2=-1) - 1.0), -1.0, 1.0)
+    s = 0.5 * np.linalg.norm(np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0],
+                                       rel[..., 1, 0] - rel[..., 0, 1]], axis=-1), axis=-1)
+    return np.arctan2(s, c)
+
+
+@dataclass(frozen=True)
+class PoseChart:
+    """The log chart at the goal orientation, Eqs. (P1)-(P4).
+
+    goal_rotation : array, shape (3, 3)
+        R_g, the orientation the chart is centred on (the demos' mean final orientation).
+    length : float
+        l, chart metres per radian (``ROTATION_LENGTH``).
+    """
+
+    goal_rotation: np.ndarray
+    length: float = ROTATION_LENGTH
+    _goal_t: np.ndarray = field(init=False, repr=False, compare=False)
+    _goal_over_l: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        rot = np.ascontiguousarray(self.goal_rotation, dtype=np.float64)
+        object.__setattr__(self, "goal_rotation", rot)
+        object.__setattr__(self, "_goal_t", np.ascontiguousarray(rot.T))
+        object.__setattr__(self, "_goal_over_l", rot / float(self.length))   # R_g / l
+
+    @classmethod
+    def at(cls, goal_q: np.ndarray, length: float = ROTATION_LENGTH) -> PoseChart:
+        """The chart at the unit quaternion goal_q (w, x, y, z), shape (4,)."""
+        return cls(quaternion_matrices(np.asarray(goal_q, dtype=np.float64)), float(length))
+
+    @property
+    def goal_q(self) -> np.ndarray:
+        """R_g as a quaternion (w, x, y, z), w >= 0, shape (4,)."""
+        return matrix_quaternions(self.goal_rotation)
+
+    def rotation_coordinates(self, rot: np.ndarray) -> np.ndarray:
+        """l log(R_g^T R) of Eq. (P1): rotations of shape (..., 3, 3) -> shape (..., 3)."""
+        rot = np.asarray(rot, dtype=np.float64)
+        rel = np.einsum("ji,...jk->...ik", self.goal_rotation, rot).reshape(-1, 3, 3)
+        out = np.stack([pin.log3(r) for r in rel]) if len(rel) else np.zeros((0, 3))
+        return self.length * out.reshape(rot.shape[:-2] + (3,))
+
+    def to_chart(self, x: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """z = (x, l log(R_g^T R(q))) of Eq. (P1): x (..., 3), q (..., 4) -> z (..., 6)."""
+        return np.concatenate([np.asarray(x, dtype=np.float64),
+                               self.rotation_coordinates(quaternion_matrices(q))], axis=-1)
+
+    def rotations(self, z: np.ndarray) -> np.ndarray:
+        """R = R_g exp(z_rot / l) of Eq. (P2): z (..., 6) -> rotations (..., 3, 3)."""
+        z = np.asarray(z, dtype=np.float64)
+        r = z[..., 3:6].reshape(-1, 3) / self.length
+        out = np.stack([self.goal_rotation @ pin.exp3(v) for v in r]) if len(r) else np.zeros((0, 3, 3))
+        return out.reshape(z.shape[:-1] + (3, 3))
+
+    def from_chart(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x (..., 3), q (..., 4)) of z (..., 6), Eq. (P2)."""
+        z = np.asarray(z, dtype=np.float64)
+        return z[..., :3].copy(), matrix_quaternions(self.rotations(z))
+
+    def point(self, x: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """Eq. (P1) for one pose: x (3,) and its rotation matrix rot (3, 3) -> z (6,) (the control
+        loop's fast path; ``to_chart`` for batches of quaternions)."""
+        z = np.empty(6)
+        z[:3] = x
+        z[3:] = self.length * pin.log3(self._goal_t.dot(rot))
+        return z
+
+    def twist(self, z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
+        """(v, omega) of Eq. (P3), world axes [m/s, rad/s], shape (6,), for one chart point z (6,)
+        and its chart velocity zdot (6,): v = zdot[:3], omega = R J_r(r) r_dot = R_g J_l(r) r_dot, since
+        exp(r) J_r(r) = J_l(r) = J_r(-r) (SO(3)'s left Jacobian; one ``Jexp3`` call)."""
+        out = np.empty(6)
+        out[:3] = zdot[:3]
+        out[3:] = self._goal_over_l.dot(pin.Jexp3(z[3:6] * (-1.0 / self.length)).dot(zdot[3:6]))
+        return out
+
+    def angular_velocity(self, z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
+        """omega = R J_r(r) r_dot of Eq. (P3), world axes [rad/s], for one point z (6,) and its
+        chart velocity zdot (6,); shape (3,)."""
+        return self.twist(np.asarray(z, dtype=np.float64), np.asarray(zdot, dtype=np.float64))[3:]
+
+    def angle_to_goal(self, z: np.ndarray) -> np.ndarray:
+        """The geodesic angle from R(z) to R_g [rad], |z_rot| / l (Eq. (P1)): z (..., 6) -> (...)."""
+        return np.linalg.norm(np.asarray(z, dtype=np.float64)[..., 3:6], axis=-1) / self.length
+
+    def angles_between(self, z1: np.ndarray, z2: np.ndarray) -> np.ndarray:
+        """angle(R(z1), R(z2)) [rad] of Eq. (P4) for chart points of shape (..., 6) -> (...)."""
+        return geodesic_angle(self.rotations(z1), self.rotations(z2))
+
+    def to_dict(self) -> dict:
+        return {"goal_q": [float(v) for v in self.goal_q], "length": float(self.length)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> PoseChart:
+        q = np.asarray(d["goal_q"], dtype=np.float64)
+        if q.shape != (4,) or not np.isfinite(q).all() or abs(float(np.linalg.norm(q)) - 1.0) > UNIT_TOLERANCE:
+            raise ValueError(f"a pose chart's goal_q must be a unit quaternion, got {q.tolist()}")
+        length = float(d["length"])
+        if not (math.isfinite(length) and length > 0):
+            raise ValueError(f"a pose chart's length must be positive, got {length}")
+        return cls.at(q / np.linalg.norm(q), length)
+
+
+def chart_demos(demos: DemoSet, chart: PoseChart) -> DemoSet:
+    """A pose set's demos as chart points of R^6, Eq. (P1): positions (N, T, 3) and quaternions
+    (N, T, 4) -> a position set of shape (N, T, 6), named after the poses."""
+    from lfd.demos import DemoSet
+
+    if demos.q is None:
+        raise ValueError(f"{demos.name}: chart_demos needs a set of poses")
+    # the pose set checked its end poses (positions, and orientations by angle); the chart's rotation
+    # coordinates are radians times l, not the positions' units, so the end check is not repeated on them
+    return DemoSet(demos.t, chart.to_chart(demos.x, demos.q), name=demos.name, end_tolerance=math.inf)

@@ -170,15 +170,19 @@ def min_samples(d: int) -> int:
 
 def grid(lo: np.ndarray, hi: np.ndarray, samples: int) -> np.ndarray:
     """A regular grid with m = max(MIN_PER_AXIS, ceil(samples^(1/d))) points per axis, corners included;
-    above ``GRID_MAX_DIM`` dimensions the 2^d corners and ``samples`` uniform points (seed 0).
+    above ``GRID_MAX_DIM`` dimensions the 2^d corners (when there are no more than ``samples``) and
+    ``samples`` uniform points (seed 0).
 
     lo, hi : arrays, shape (d,); returns shape (m^d, d) (or (2^d + samples, d)).
     """
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     d = lo.shape[0]
     if d > GRID_MAX_DIM:
+        uniform = np.random.default_rng(0).uniform(lo, hi, size=(samples, d))
+        if 2 ** d > samples:       # too many corners to list: the uniform samples only
+            return uniform
         corners = np.stack(np.meshgrid(*zip(lo, hi), indexing="ij"), axis=-1).reshape(-1, d)
-        return np.concatenate([corners, np.random.default_rng(0).uniform(lo, hi, size=(samples, d))])
+        return np.concatenate([corners, uniform])
     m = max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / lo.shape[0]) - 1e-9))
     axes = [np.linspace(a, b, m) for a, b in zip(lo, hi)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, lo.shape[0])

@@ -27,6 +27,7 @@ MAX_DURATION = 1e6    # s (11 days): a longer demo is not a recording of a motio
 MOTION_TOLERANCE = 1e-9   # a demo whose extent is below this fraction of its coordinates' size does not move
 GOAL_TOLERANCE = 0.05  # end points must lie within this fraction of the data's extent of their mean
 GOAL_ANGLE_TOLERANCE = 45.0   # degrees: final orientations must lie within this angle of their mean
+MAX_TURN_FROM_GOAL = 170.0    # degrees: every orientation of a pose demo must lie within this of the goal's
 MAX_DIM = 32          # task dimensions a demo set may have (2-D and 3-D paths, 6-D pose charts, stacked sets)
 
 LASA_SHAPES: tuple[str, ...] = (
@@ -208,10 +209,19 @@ def _orientations(q: np.ndarray, shape: tuple[int, ...], name: str) -> tuple[np.
     near = off <= 8 * np.finfo(np.float64).eps
     q = np.stack([continuous(qi) for qi in np.where(near[..., None], q, q / norm[..., None])])
     goal_q = mean_quaternion(q[:, -1])
-    miss = np.degrees(geodesic_angle(quaternion_matrices(goal_q), quaternion_matrices(q[:, -1])))
+    goal = quaternion_matrices(goal_q)
+    miss = np.degrees(geodesic_angle(goal, quaternion_matrices(q[:, -1])))
     if miss.max() > GOAL_ANGLE_TOLERANCE:
         raise DemoError(f"{name}: demos do not end near a common orientation (demo {int(np.argmax(miss))} "
                         f"ends {miss.max():.1f} deg from the mean, tolerance {GOAL_ANGLE_TOLERANCE:g} deg)")
+    # the poses are learned in the chart at the goal orientation (lfd.pose), which holds orientations
+    # less than a half turn from it: a demo that turns further would jump across the chart
+    away = np.degrees(geodesic_angle(goal, quaternion_matrices(q)))                 # (N, T)
+    if away.max() > MAX_TURN_FROM_GOAL:
+        i, k = np.unravel_index(int(np.argmax(away)), away.shape)
+        raise DemoError(f"{name}: demo {i} turns {away[i, k]:.1f} deg away from the goal orientation at sample "
+                        f"{k}; poses are learned within {MAX_TURN_FROM_GOAL:g} deg of it (a half turn is the "
+                        "chart's edge)")
     return q, goal_q
 
 
@@ -383,7 +393,7 @@ def robottasks(task: str) -> DemoSet:
     The poses are those of the hand's tool point (``panda_hand_tcp``, the Panda's default tool frame):
     the matfolding demos then slide the fingertips 5 cm above the table, as folding a mat does (with the
     flange they would be under it); a few samples of openbox and pan2stove lie just beyond the arm's
-    reach in that frame (reports/robottasks.md).
+    reach in that frame (reports/robottasks_arm.md).
 
     References
     ----------
@@ -442,7 +452,7 @@ def load_file(path: str | os.PathLike) -> DemoSet:
 def _real_array(a: np.ndarray, key: str, name: str) -> np.ndarray:
     """``a`` as float64 if it holds real numbers (ints, unsigned ints, floats); else DemoError."""
     if np.iscomplexobj(a):
-        raise DemoError(f"{name}: {key} holds complex numbers; positions and times must be real")
+        raise DemoError(f"{name}: {key} holds complex numbers; positions, times and quaternions must be real")
     if a.dtype.kind not in "iuf":
         raise DemoError(f"{name}: {key} must hold numbers, got dtype {a.dtype}")
     return np.asarray(a, dtype=np.float64)
@@ -528,10 +538,16 @@ def resample(ts: list[np.ndarray], xs: list[np.ndarray], qs: list[np.ndarray] | 
             tn = np.linspace(t[0], t[-1], T)
             x = np.stack([np.interp(tn, t, x[:, j]) for j in range(x.shape[1])], axis=1)
             if q is not None:
-                norm = np.linalg.norm(q, axis=1)
-                if not np.all(norm > 0):
-                    raise DemoError(f"{name}: a quaternion of demo {i} is zero")
-                rot = Rotation.from_quat(q / norm[:, None], scalar_first=True)
+                from lfd.pose import UNIT_TOLERANCE
+
+                with np.errstate(all="ignore"):
+                    off = np.abs(np.linalg.norm(q, axis=1) - 1.0)
+                if not (off <= UNIT_TOLERANCE).all():    # refused as DemoSet refuses it, before Slerp
+                    k = int(np.argmax(~(off <= UNIT_TOLERANCE)))
+                    raise DemoError(f"{name}: quaternion of demo {i} at sample {k} has norm "
+                                    f"{float(np.linalg.norm(q[k])):.4g}, not a rotation "
+                                    f"(more than {UNIT_TOLERANCE:g} from 1)")
+                rot = Rotation.from_quat(q / np.linalg.norm(q, axis=1)[:, None], scalar_first=True)
                 q = Slerp(t, rot)(tn).as_quat(scalar_first=True)
             t = tn
         to.append(t)

@@ -10,7 +10,10 @@ Eqs. (P1)-(P4)):
     Eq. (P4): angle(R_1, R_2) = |log(R_1^T R_2)| <= |r_1 - r_2|  (SO(3) has non-negative curvature, so its
               exponential map at R_g does not increase distances),
 
-with l = ``ROTATION_LENGTH`` metres per radian, so that one learner's single scale fits positions and
+with l = ``ROTATION_LENGTH`` metres per radian (Eq. (P4): the curve R_g exp(r_1 + s (r_2 - r_1)),
+s in [0, 1], has body velocity J_r(r(s)) (r_2 - r_1), and J_r's singular values are 1, 1 and
+|sin(theta / 2)| / (theta / 2) <= 1, so its length, at least the geodesic angle, is at most
+|r_1 - r_2|, for every r_1, r_2 in R^3), so that one learner's single scale fits positions and
 turns alike. Every learner then learns a field on R^6 as it would on positions, and a pose field is
 that field with its ``PoseChart``. The chart is one-to-one for angles below pi; at the goal's antipode
 (a half turn away, the cut locus) log jumps, which is the known obstruction: no continuous field on
@@ -120,6 +123,13 @@ class PoseChart:
         """The chart at the unit quaternion goal_q (w, x, y, z), shape (4,)."""
         return cls(quaternion_matrices(np.asarray(goal_q, dtype=np.float64)), float(length))
 
+    @classmethod
+    def of(cls, demos: DemoSet) -> PoseChart:
+        """The chart a pose set is learned in: at its goal orientation ``demos.goal_q``."""
+        if demos.goal_q is None:
+            raise ValueError(f"{demos.name}: only a set of poses has a pose chart")
+        return cls.at(demos.goal_q)
+
     @property
     def goal_q(self) -> np.ndarray:
         """R_g as a quaternion (w, x, y, z), w >= 0, shape (4,)."""
@@ -172,8 +182,14 @@ class PoseChart:
         return self.twist(np.asarray(z, dtype=np.float64), np.asarray(zdot, dtype=np.float64))[3:]
 
     def angle_to_goal(self, z: np.ndarray) -> np.ndarray:
-        """The geodesic angle from R(z) to R_g [rad], |z_rot| / l (Eq. (P1)): z (..., 6) -> (...)."""
-        return np.linalg.norm(np.asarray(z, dtype=np.float64)[..., 3:6], axis=-1) / self.length
+        """The geodesic angle from R(z) to R_g [rad], z (..., 6) -> (...): |z_rot| / l where that is at
+        most pi (Eq. (P1)), else the angle of R_g^T R(z) (a chart point past the half turn)."""
+        z = np.asarray(z, dtype=np.float64)
+        out = np.linalg.norm(z[..., 3:6], axis=-1) / self.length
+        far = out > math.pi
+        if np.any(far):
+            out[far] = geodesic_angle(self.goal_rotation, self.rotations(z[far]))
+        return out
 
     def angles_between(self, z1: np.ndarray, z2: np.ndarray) -> np.ndarray:
         """angle(R(z1), R(z2)) [rad] of Eq. (P4) for chart points of shape (..., 6) -> (...)."""

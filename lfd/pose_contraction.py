@@ -67,11 +67,12 @@ def check_pose_contraction(field: VelocityField, n_pairs: int = PAIRS, seed: int
     -------
     dict
         ``checked`` (bool: a stated bound exists), ``holds`` (bool), ``rate`` (1/s), ``overshoot``,
-        ``worst_ratio`` (max over pairs and times of D(t) / (overshoot exp(-rate t) D_chart(0))),
+        ``worst_ratio`` (max over pairs and times of D(t) / (overshoot exp(-rate t) |z_1(0) - z_2(0)|)),
+        ``worst_chart_ratio`` (the same with |z_1(t) - z_2(t)| for D(t)),
         ``geodesic_decay_rate`` (the smallest sampled -log(angle(T) / angle(0)) / T over pairs, 1/s),
-        ``goal_worst_ratio`` (the same bound on the angle to the goal), ``cut_locus_growth`` (the
-        largest growth of the geodesic angle between pairs straddling the cut locus), ``n_pairs``,
-        ``horizon_s``, ``max_start_angle_deg``.
+        ``goal_worst_ratio`` (the same bound on the pose distance to the goal), ``cut_locus_growth``
+        (the largest growth of the geodesic angle between pairs straddling the cut locus), ``n_pairs``,
+        ``horizon_s``, ``max_start_angle_deg``, ``rotation_length_m_per_rad`` (l).
     """
     chart = field.chart
     if chart is None or field.demo_box is None:
@@ -81,7 +82,7 @@ def check_pose_contraction(field: VelocityField, n_pairs: int = PAIRS, seed: int
     pad = (hi[:3] - lo[:3]) * 0.25
     plo, phi = lo[:3] - pad, hi[:3] + pad
     rate = float(getattr(field, "rate", 0.0))
-    overshoot = float(getattr(field, "condition_bound", 1.0)) ** 0.5 if hasattr(field, "condition_bound") else 1.0
+    overshoot = float(getattr(field, "condition_bound", 1.0)) ** 0.5
     # the pair bound is the goal-contraction learner's; the tracking learner's (Eq. (T5)) is to its
     # reference, checked by ``lfd.learners.tracking.check_tracking_contraction`` in the chart
     checked = rate > 0 and hasattr(field, "metric_bounds") and not is_phased(field)
@@ -109,9 +110,9 @@ def check_pose_contraction(field: VelocityField, n_pairs: int = PAIRS, seed: int
     with np.errstate(divide="ignore", invalid="ignore"):
         decay = -np.log(ang[:, -1] / ang[:, 0]) / horizon
     decay = decay[np.isfinite(decay)]
-    # the angle to the goal: its chart point (p_g, 0)
+    # the pose distance to the goal (p_g, R_g), whose chart point is (p_g, 0)
     goal_z = np.asarray(field.goal, dtype=np.float64)
-    to_goal = chart.angle_to_goal(za) * l                                      # l angle(R(t), R_g)
+    to_goal = np.sqrt(np.sum((za[..., :3] - goal_z[:3]) ** 2, -1) + (l * chart.angle_to_goal(za)) ** 2)
     g0 = np.linalg.norm(z1 - goal_z, axis=1)
     goal_ratio = float(np.max(to_goal / (overshoot * np.exp(-rate * t)[None, :] * g0[:, None]
                                          * (1 + REL_TOLERANCE) + ABS_FLOOR)))

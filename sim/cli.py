@@ -124,7 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--learner", choices=LEARNER_CHOICES, help="learner(s) to run (default: both, "
                    "or the learner of --model)")
     p.add_argument("--model", help="a trained model file instead of training")
-    p.add_argument("--demos", default="spiral", help="spiral (default), spiral3d, lasa:NAME or a .csv/.npz file")
+    p.add_argument("--demos", default="spiral",
+                   help="spiral (default), spiral3d, lasa:NAME, robottasks:TASK (poses), bag:PATH:/topic, "
+                        "or a .csv/.npz file")
     p.add_argument("--perturb", type=scenarios, default=DEFAULT_SCENARIOS, metavar="|".join(SCENARIOS) + "|all",
                    help="perturbation scenario(s): one name, a comma list, or all (default: none,offset,push)")
     p.add_argument("--seed", type=lfd_commands.seed, default=0,
@@ -156,7 +158,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_argument_group("placement of the demos on the robot (default: centred on the tool at the "
                              "home posture, --size-m across)")
     g.add_argument("--placement", choices=("auto", "recorded"), default="auto",
-                   help="recorded: 3-D demos where they were recorded, metres in the robot's base frame")
+                   help="recorded: 3-D demos where they were recorded, metres in the robot's base frame "
+                        "(demos of poses always run where recorded)")
     g.add_argument("--origin", type=vector3, metavar="X,Y,Z", help="world position (m) of the demos' box centre")
     g.add_argument("--scale", type=float, metavar="M_PER_UNIT", help="metres per demo unit (overrides --size-m)")
     g.add_argument("--shift", type=vector3, metavar="DX,DY,DZ",

@@ -140,13 +140,14 @@ class Experiment:
         if demos.has_orientation:
             from lfd.pose import PoseChart, chart_demos
 
-            assert demos.goal_q is not None
-            chart = placement.chart if placement is not None and placement.chart is not None else \
-                PoseChart.at(demos.goal_q)
+            chart = placement.chart if placement is not None and placement.chart is not None else PoseChart.of(demos)
             demos = chart_demos(demos, chart)
             if placement is None:
-                placement = Placement.recorded(chart) if size_m is None else \
+                placement = Placement.recorded(chart, robot) if size_m is None else \
                     Placement.auto(robot, demos.x, size_m=size_m, chart=chart)
+        if placement is not None and (placement.chart is None) != (chart is None):
+            raise SimError(f"the placement is for {'poses' if placement.pose else 'positions'}, the demos "
+                           f"{demos.name} are {'poses' if chart is not None else 'positions'}")
         #: the demos as task points (chart points for poses), shape (N, T, d)
         self.task_demos = demos
         self.placement = placement or Placement.auto(robot, demos.x, plane=plane, size_m=size_m)
@@ -195,9 +196,16 @@ class Experiment:
         return execute(env, fn, fps=self.fps, progress=progress, desc=desc, hold=holds[0] if holds else None,
                        timed=is_time_varying(field))
 
+    def check_start(self, perturbations: tuple[Perturbation, ...]) -> None:
+        """``PlacementError`` if a run with ``perturbations`` would start out of the arm's reach
+        (an offset or turned start), before any field exists."""
+        rest = tuple(p for p in perturbations if not isinstance(p, Hold))
+        make_environment(self.robot, self.placement, self.start, self.task_demos.goal, duration_s=self.duration_s,
+                         perturbations=rest, rotation_ref=self.rotation_ref, physics=self.physics, **self.options)
+
     def _check_space(self, field: Field) -> None:
         """SimError unless the field lives where the task does (a pose field on this task's chart)."""
-        chart, own = field.chart, self.placement.chart
+        chart, own = getattr(field, "chart", None), self.placement.chart
         if (chart is None) != (own is None):
             kind = "a pose field" if chart is not None else "a position field"
             raise SimError(f"{kind} cannot run on {'poses' if own is not None else 'positions'} "

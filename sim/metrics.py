@@ -81,7 +81,7 @@ def orientation_metrics(t: np.ndarray, rot: np.ndarray, reference: np.ndarray, g
     goal : (3, 3); demo_t : (T,) and demo : (T, 3, 3) the demonstration's rotations, times from 0.
     The tool's rotation at a demo time is that of the nearest control step.
     """
-    k = np.clip(np.searchsorted(t, demo_t - demo_t[0] + t[0]), 0, len(t) - 1)
+    k = np.clip(np.rint(np.interp(demo_t - demo_t[0] + t[0], t, np.arange(len(t)))).astype(int), 0, len(t) - 1)
     track = np.degrees(geodesic_angle(rot, reference))
     imit = np.degrees(geodesic_angle(rot[k], demo))
     return {"tracking_rmse_deg": float(np.sqrt(np.mean(track ** 2))),

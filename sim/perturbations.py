@@ -22,6 +22,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from sim.errors import SimError
 from sim.placement import Placement
@@ -170,17 +171,18 @@ def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement
     pushes = [p for p in perturbations if isinstance(p, Push)]
     if len(pushes) > 1:
         raise SimError("only one push per run is supported")
+    goal_turn = np.eye(3)   # the goal's turns, composed, world
     for p in perturbations:
         if isinstance(p, (StartOffset, GoalShift)) and p.angle_deg != 0.0 and placement.chart is None:
             raise SimError(f"{p.kind}: a turn (angle_deg) needs a pose task")
         if isinstance(p, StartOffset):
             sched.start_offset_task = sched.start_offset_task + placement.offset_to_task(p.offset_world(placement))
-            sched.start_turn_world = sched.start_turn_world + p.turn_world()
+            if p.angle_deg != 0.0:   # turns compose as rotations
+                sched.start_turn_world = pin.log3(pin.exp3(p.turn_world()) @ pin.exp3(sched.start_turn_world))
         elif isinstance(p, GoalShift):
             sched.goal_offset_task = sched.goal_offset_task + placement.offset_to_task(p.offset_world(placement))
-            if placement.chart is not None and p.angle_deg != 0.0:
-                turn_task = placement.rotation.T @ p.turn_world()
-                sched.goal_offset_task[3:] += placement.chart.length * (placement.chart.goal_rotation.T @ turn_task)
+            if p.angle_deg != 0.0:
+                goal_turn = pin.exp3(p.turn_world()) @ goal_turn
         elif isinstance(p, Push):
             name = p.body or default_body
             if name not in body_ids:
@@ -201,4 +203,8 @@ def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement
             sched.qvel_noise = noise if sched.qvel_noise is None else sched.qvel_noise + noise
         elif type(p) is not Perturbation:
             raise SimError(f"unknown perturbation {p!r}")
+    if placement.chart is not None and not np.array_equal(goal_turn, np.eye(3)):
+        # the turned goal G A R_g in the chart at R_g (task axes A): l log(R_g^T A^T G A R_g)
+        rg, a = placement.chart.goal_rotation, placement.rotation
+        sched.goal_offset_task[3:] += placement.chart.length * pin.log3(rg.T @ a.T @ goal_turn @ a @ rg)
     return sched

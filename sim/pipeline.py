@@ -192,8 +192,7 @@ def placement_of(job: ArmJob, robot: RobotModel, demos: lfd.DemoSet) -> Placemen
     if demos.has_orientation:
         from lfd.pose import PoseChart
 
-        assert demos.goal_q is not None
-        chart = PoseChart.at(demos.goal_q)
+        chart = PoseChart.of(demos)
         if job.shift is not None:   # the recorded poses, translated
             return Placement(np.asarray(job.shift, dtype=np.float64), np.eye(3), 1.0, 6, chart)
         if job.placement == "recorded" or (job.origin is None and job.scale is None):
@@ -332,6 +331,12 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
                      gains=Gains(lead_s=OBSTACLE_LEAD_S) if obstacles else Gains())
     if goal_motion is not None:
         check_goal_motion(goal_motion, exp, demos, obstacles)
+    if exp.placement.pose:   # a pose task's offset start is turned too: its reach, before any training
+        for name in {*job.scenarios, *([job.side_by_side] if job.side_by_side else [])} & {"offset"}:
+            try:
+                exp.check_start(job.perturbations(name, job.seed, True))
+            except PlacementError as e:
+                raise ConfigError(f"scenario '{name}': {e}") from None
     pushes = "push" in job.scenarios or job.side_by_side == "push" or job.grid
     if pushes and job.push.start_s + job.push.duration_s > exp.duration_s:
         raise ConfigError(f"the push ends at {job.push.start_s + job.push.duration_s:g} s, after the run "

@@ -65,8 +65,11 @@ class Placement:
         object.__setattr__(self, "scale", float(self.scale))
 
     @classmethod
-    def recorded(cls, chart: PoseChart) -> Placement:
-        """The identity placement of a pose task: poses where they were recorded (base frame, metres)."""
+    def recorded(cls, chart: PoseChart, robot: RobotModel | None = None) -> Placement:
+        """The identity placement of a pose task: poses where they were recorded (base frame, metres);
+        PlacementError for a planar ``robot`` (it cannot turn its tool freely)."""
+        if robot is not None and robot.planar:
+            raise PlacementError(f"robot '{robot.name}' moves in a plane; it cannot follow poses")
         return cls(np.zeros(3), np.eye(3), 1.0, 6, chart)
 
     @property
@@ -156,6 +159,8 @@ class Placement:
         pts = pts.reshape(-1, d)
         if robot.planar and d != 2:
             raise PlacementError(f"robot '{robot.name}' moves in a plane; it cannot follow a {d}-D field")
+        if chart is None and d not in (2, 3):
+            raise PlacementError(f"the arm follows 2-D or 3-D paths, or poses; these demos are {d}-D")
         if chart is not None:
             pts, d = pts[:, :3], 3
         lo, hi = pts.min(0), pts.max(0)
@@ -203,6 +208,8 @@ class Placement:
         lo, hi = pts[:, :pd].min(0), pts[:, :pd].max(0)
         grow = margin_m / self.scale
         ring = _box_probe_points(lo - grow, hi + grow)
+        hint = ("poses run where recorded: try --shift DX,DY,DZ" if self.chart is not None
+                else "try a smaller --size-m or another --plane")
         rots, source = None, np.zeros(0, dtype=int)
         if self.chart is not None:
             # a pose path: the margin around each sampled path point along the world axes, in that
@@ -231,7 +238,7 @@ class Placement:
             if not err <= IK_TOLERANCE_M:
                 raise PlacementError(
                     f"placement unreachable on '{robot.name}': {where} {_fmt(p)} m is missed by "
-                    f"{err * 1e3:.1f} mm (try a smaller --size-m or another --plane)")
+                    f"{err * 1e3:.1f} mm ({hint})")
             bad = np.flatnonzero((qs < qlo) | (qs > qhi))
             if bad.size:
                 j = int(bad[0])

@@ -154,7 +154,7 @@ class FieldTrackingTask(control.Task):
             rotation_ref = kin.ee_rotation().copy()
         self.rotation_ref = rotation_ref
         q0, err, rot_err = self._start_joints(self.start_task)
-        if not (err <= IK_TOLERANCE_M and rot_err <= IK_TOLERANCE_RAD):
+        if not (err <= IK_TOLERANCE_M and (rot_err <= IK_TOLERANCE_RAD or not placement.pose)):
             p0 = placement.to_world(self.start_task)
             miss = f"{err * 1e3:.1f} mm" if not err <= IK_TOLERANCE_M else f"{np.degrees(rot_err):.1f} deg"
             raise PlacementError(f"start point {np.round(p0, 3).tolist()} m is out of reach of "
@@ -186,7 +186,7 @@ class FieldTrackingTask(control.Task):
             r = self.start_radius * self._rng.uniform() ** (1.0 / d)
             x = self._start_nominal + r * u / max(float(np.linalg.norm(u)), 1e-300)
             q, err, rot_err = self._start_joints(x)
-            if err <= IK_TOLERANCE_M and rot_err <= IK_TOLERANCE_RAD:
+            if err <= IK_TOLERANCE_M and (rot_err <= IK_TOLERANCE_RAD or not self.placement.pose):
                 self.start_task, self.q_start = x, q
                 return
         raise PlacementError(f"no reachable start found in {START_DRAWS} draws within {self.start_radius:g} "
@@ -377,12 +377,10 @@ def _demo_defaults(robot: RobotModel, demos: str | DemoSet, demo_index: int, pla
     if demo_set.has_orientation:   # poses run where recorded, as chart points (sim.placement)
         from lfd.pose import PoseChart, chart_demos
 
-        assert demo_set.goal_q is not None
-        chart = placement.chart if placement is not None and placement.chart is not None else \
-            PoseChart.at(demo_set.goal_q)
+        chart = placement.chart if placement is not None and placement.chart is not None else PoseChart.of(demo_set)
         demo_set = chart_demos(demo_set, chart)
         if placement is None:
-            placement = Placement.recorded(chart)
+            placement = Placement.recorded(chart, robot)
             placement.check_reachable(robot, demo_set.x)
     if rotation_ref is None and not robot.planar:
         kin = Kinematics(robot)

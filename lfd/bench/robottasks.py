@@ -643,11 +643,13 @@ def figure_paths_3d(records: list[dict[str, Any]], task: str, learners: list[str
     demos = robottasks(task)
     lo, hi = demos.bounds(0.15)
     ext = np.maximum(hi - lo, 1e-3)
-    cols = max(len(recs), 1)
-    fig = Figure(figsize=(4.6 * cols, 3.4))
+    n = max(len(recs), 1)
+    cols = 2 if n == 4 else n                  # four learners as 2 x 2: the panels stay readable
+    rows = -(-n // cols)
+    fig = Figure(figsize=(4.6 * cols, 3.4 * rows + 0.4))
     for i, (learner, r) in enumerate(recs.items()):
         a = arrays(r)
-        ax = fig.add_subplot(1, cols, i + 1, projection="3d")
+        ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
         inside = ((a["rollouts_x"] >= lo) & (a["rollouts_x"] <= hi)).all(axis=-1, keepdims=True)
         for traj in np.where(inside, a["rollouts_x"], np.nan):
             ax.plot(*traj.T, color="0.7", lw=0.4, alpha=0.6)
@@ -668,9 +670,10 @@ def figure_paths_3d(records: list[dict[str, Any]], task: str, learners: list[str
         ax.set_ylabel("y", fontsize=7, labelpad=-8)
         ax.set_zlabel("z", fontsize=7, labelpad=-8)
         ax.set_title(f"{learner}  DTW {fmt(r['metrics']['dtw_mm'], '.0f')} mm", fontsize=9)
-    fig.suptitle(f"{task}: demos (wide, dark), reproductions from the demo starts (colour), "
-                 "rollouts from the perturbed starts (light grey); m", fontsize=9, y=0.98)
-    fig.subplots_adjust(left=0.01, right=0.99, bottom=0.02, top=0.88, wspace=0.05)
+    fig.suptitle(f"{task}: demos (wide, dark), reproductions from the demo starts (colour),\n"
+                 "rollouts from the perturbed starts (light grey); m", fontsize=9, y=0.99)
+    fig.subplots_adjust(left=0.01, right=0.99, bottom=0.02, top=1.0 - 0.5 / (3.4 * rows + 0.4), wspace=0.05,
+                        hspace=0.12)
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=90))
 
 

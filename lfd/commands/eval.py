@@ -55,6 +55,9 @@ def run(args: argparse.Namespace) -> int:
     names = list(result["mean"])
     print(format_table(names, result["per_demo"], result["mean"]))
     print(UNITS)
+    if field.chart is not None:
+        print(f"a pose model: scored on chart points (lfd.pose), U = metres, a turn of one radian counting as "
+              f"{field.chart.length:g} m")
     if args.json:
         report = {"model": str(args.model), "learner": field.learner, "demos": demos.name,
                   "dim": demos.dim, "n_demos": demos.n_demos, "dtw_step": dtw_step,

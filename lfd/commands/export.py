@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # imported when the command runs, so that ``lfd --help`` stay
 FORMATS: tuple[str, ...] = ("torchscript", "onnx", "npz-grid")
 EXPORT_TOL = 1e-6          # relative to max(1, max |f|) over the check points
 CHECK_POINTS = 256
-GRID_DEFAULT = {2: 201, 3: 51}   # points per axis: 40 401 (2-D) or 132 651 (3-D) nodes
+GRID_DEFAULT = {2: 201, 3: 51}   # points per axis: 40 401 (2-D) or 132 651 (3-D) nodes; above, well under the cap
 GRID_MAX_NODES = 5_000_000
 GRID_FORMAT = "lfd-npz-grid-1"
 
@@ -223,7 +223,7 @@ def export_grid(field: VelocityField, path: str, n: int | None = None, lo: np.nd
     from lfd.io import atomic_write
 
     d = field.dim
-    n = GRID_DEFAULT.get(d, 21) if n is None else n
+    n = GRID_DEFAULT.get(d, max(2, int(GRID_MAX_NODES ** (1.0 / d) / 2))) if n is None else n
     if n < 2 or n ** d > GRID_MAX_NODES:
         raise ConfigError(f"--grid must be >= 2 with at most {GRID_MAX_NODES:,} nodes in all, got {n} "
                           f"({n ** d:,} nodes in {d}-D)")

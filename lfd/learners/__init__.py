@@ -65,8 +65,7 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
     if demos.has_orientation:   # poses: the same learner on the chart's R^6 (lfd.pose, Eq. (P1))
         from lfd.pose import PoseChart, chart_demos
 
-        assert demos.goal_q is not None
-        chart = PoseChart.at(demos.goal_q)
+        chart = PoseChart.of(demos)
         demos = chart_demos(demos, chart)
     norm = Normalization.from_points(demos.x, demos.goal)
     torch.manual_seed(seed)

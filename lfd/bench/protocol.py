@@ -81,13 +81,18 @@ def stable_hash(obj: Any) -> str:
 
 def resolve_shapes(spec: str, quick: bool = False) -> list[str]:
     """``all`` (or, with quick, the QUICK_SHAPES), or a comma list of LASA shape names."""
+    return resolve_names(spec, LASA_SHAPES, QUICK_SHAPES if quick else None, "LASA shape(s)")
+
+
+def resolve_names(spec: str, known: tuple[str, ...], quick: tuple[str, ...] | None, what: str) -> list[str]:
+    """``all`` (``known``, or ``quick`` when given), or a comma list of names from ``known``, in order,
+    without repeats; ``ConfigError`` naming ``what`` for an unknown or empty list."""
     if spec == "all":
-        return list(QUICK_SHAPES if quick else LASA_SHAPES)
+        return list(known if quick is None else quick)
     names = [s.strip() for s in spec.split(",") if s.strip()]
-    unknown = [s for s in names if s not in LASA_SHAPES]
+    unknown = [s for s in names if s not in known]
     if unknown or not names:
-        raise ConfigError(f"unknown LASA shape(s) {', '.join(unknown) or '(none given)'}; "
-                          f"known: {', '.join(LASA_SHAPES)}")
+        raise ConfigError(f"unknown {what} {', '.join(unknown) or '(none given)'}; known: {', '.join(known)}")
     return list(dict.fromkeys(names))
 
 

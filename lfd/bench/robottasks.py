@@ -52,7 +52,7 @@ import numpy as np
 
 from lfd import metrics
 from lfd.bench.evaluate import TIMING_REPEATS, FieldModel
-from lfd.bench.protocol import stable_hash
+from lfd.bench.protocol import resolve_names, stable_hash
 from lfd.bench.report import figure_paths, fmt, run_line, stats, table
 from lfd.bench.runner import BenchResult, run_cells
 from lfd.demos import ROBOTTASKS, DemoSet, robottasks
@@ -113,14 +113,7 @@ def _real(v: Any) -> bool:
 
 def resolve_tasks(spec: str, quick: bool = False) -> list[str]:
     """``all`` (or, with quick, the QUICK_TASKS), or a comma list of RoboTasks9 task names."""
-    if spec == "all":
-        return list(QUICK_TASKS if quick else ROBOTTASKS)
-    names = [s.strip() for s in spec.split(",") if s.strip()]
-    unknown = [s for s in names if s not in ROBOTTASKS]
-    if unknown or not names:
-        raise ConfigError(f"unknown RoboTasks9 task(s) {', '.join(unknown) or '(none given)'}; "
-                          f"known: {', '.join(ROBOTTASKS)}")
-    return list(dict.fromkeys(names))
+    return resolve_names(spec, ROBOTTASKS, tuple(QUICK_TASKS) if quick else None, "RoboTasks9 task(s)")
 
 
 # ---------------------------------------------------------------- starts, horizon, alignment

@@ -265,7 +265,7 @@ def escaping_starts(field: VelocityField, lo: np.ndarray, hi: np.ndarray, rate: 
     and whether every trajectory stayed finite.
     """
     d = lo.shape[0]
-    m = max(2, int(round(ESCAPE_STARTS ** (1.0 / d))))
+    m = max(2, int(ESCAPE_STARTS ** (1.0 / d) + 1e-9))    # at most ESCAPE_STARTS starts (16 per axis in 2-D, 6 in 3-D)
     axes = [np.linspace(a, b, m) for a, b in zip(lo, hi)]
     starts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d)
     horizon = min(5.0 / rate, ESCAPE_HORIZON_S)
@@ -284,13 +284,14 @@ def escaping_starts(field: VelocityField, lo: np.ndarray, hi: np.ndarray, rate: 
 
 def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray | None = None,
             samples: int = DEFAULT_SAMPLES, rate: float | None = None,
-            tolerance: float = DEFAULT_TOLERANCE) -> Certificate:
+            tolerance: float = DEFAULT_TOLERANCE, pose_pairs: int | None = None) -> Certificate:
     """Certify Eq. (C1) for ``field`` (see the module docstring for what each verdict means).
 
     lo, hi : arrays, shape (d,), the box in user units (default: the training demos' box grown
     by 50%, ``default_box``); samples : at least this many grid points (and at least
     MIN_PER_AXIS per axis); rate : 1/s (default: the field's own, or ``IDENTITY_RATE``);
-    tolerance : extra absolute slack, 1/s, added to the round-off slack of Eq. (K2).
+    tolerance : extra absolute slack, 1/s, added to the round-off slack of Eq. (K2); pose_pairs : a pose
+    field's pairs of each kind for ``lfd.pose_contraction.check_pose_contraction`` (default its ``PAIRS``).
     Raises ConfigError for a missing or empty box, a bad rate, sample count or tolerance.
     """
     if lo is None or hi is None:
@@ -323,9 +324,9 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
         return cert
     from dataclasses import replace
 
-    from lfd.pose_contraction import check_pose_contraction
+    from lfd.pose_contraction import PAIRS, check_pose_contraction
 
-    pose = check_pose_contraction(field)
+    pose = check_pose_contraction(field, PAIRS if pose_pairs is None else int(pose_pairs))
     if pose["checked"] and not pose["holds"] and cert.certified:
         return replace(cert, pose=pose, verdict="not certified", certified=False,
                        proof="a sampled pair of poses breaks the pose-distance bound (a counterexample)")

@@ -15,7 +15,8 @@ rotation parts over l, so the same bound holds for the pose distance
 in particular for the angle to the goal orientation. ``check_pose_contraction`` samples what the
 statement covers and where it is most likely to fail: pairs near each other and far apart, starts up
 to a hair below a half turn from the goal, positions in the demos' box grown by half its size, and
-follows them with RK4. It also reports the pairs that straddle the cut locus (orientations a half
+follows them (the exact flow of Eq. (C4) for the goal-contraction learner, else RK4). It also
+reports the pairs that straddle the cut locus (orientations a half
 turn from the goal, close to each other but on opposite sides): there the chart distance is large
 while the geodesic one is small, so the bound, stated in the chart distance, says nothing about the
 geodesic one; such pairs separate before they converge (the obstruction of ``lfd.pose``).
@@ -140,8 +141,12 @@ def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 def _rollout(field: VelocityField, z0: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Chart trajectories, shape (B, T, 6), from z0 (B, 6) over t (T,), RK4 (with the phase for tracking)."""
+    """Chart trajectories, shape (B, T, 6), from z0 (B, 6) over t (T,): the contraction field's exact
+    flow (its Eq. (C4), ``closed_form_rollout``) where it has one, else RK4 (with the phase for tracking)."""
     with np.errstate(all="ignore"):
         if is_phased(field):
             return field.rollout_with_phase(z0, t, method="rk4", substeps=1)[0]
+        exact = getattr(field, "closed_form_rollout", None)
+        if callable(exact):
+            return np.asarray(exact(z0, t))
         return field.rollout(z0, t, method="rk4")

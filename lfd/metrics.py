@@ -144,6 +144,43 @@ def dtw(a: np.ndarray, b: np.ndarray, step: int = 1) -> float:
     return _antidiagonal_dp(cdist(a, b), "sum")
 
 
+def dtw_path(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The optimal warping path of ``dtw(a, b)`` (step 1): pairs (i, j) from (0, 0) to
+    (n - 1, m - 1) by steps (1, 0), (0, 1), (1, 1), minimising sum |a_i - b_j|.
+
+    Each row of the accumulated cost D[i, j] = c_ij + min(D[i-1, j-1], D[i-1, j], D[i, j-1]) is one
+    prefix-minimum: with S_j = sum_{l <= j} c_il and e_j = c_ij + min(D[i-1, j-1], D[i-1, j]),
+    D[i, j] = S_j + min_{k <= j} (e_k - S_k). The path is traced back from (n - 1, m - 1), the
+    diagonal step preferred on ties.
+
+    Parameters
+    ----------
+    a : array, shape (n, d)
+    b : array, shape (m, d)
+
+    Returns
+    -------
+    array of int, shape (L, 2)
+        The aligned index pairs in order, n, m <= L <= n + m - 1.
+    """
+    c = cdist(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
+    n, m = c.shape
+    acc = np.empty((n, m))
+    prev = np.full(m, np.inf)
+    for i in range(n):
+        s = np.cumsum(c[i])
+        above = np.minimum(prev, np.concatenate([[np.inf if i else 0.0], prev[:-1]]))
+        acc[i] = s + np.minimum.accumulate(c[i] + above - s)
+        prev = acc[i]
+    i, j = n - 1, m - 1
+    path = [(i, j)]
+    while i or j:
+        steps = [(i - 1, j - 1), (i - 1, j), (i, j - 1)]
+        i, j = min((p for p in steps if p[0] >= 0 and p[1] >= 0), key=lambda p: acc[p])
+        path.append((i, j))
+    return np.array(path[::-1], dtype=int)
+
+
 def frechet(a: np.ndarray, b: np.ndarray) -> float:
     """Discrete Frechet distance (Eiter & Mannila 1994): the shortest leash over monotone couplings.
 

@@ -7,8 +7,8 @@ Eqs. (P1)-(P4)):
     Eq. (P2): R = R_g exp(r)  (the inverse map, defined for every r in R^3),
     Eq. (P3): omega = R J_r(r) r_dot  (the world angular velocity of z_dot; J_r: SO(3)'s right
               Jacobian, Pinocchio's ``Jexp3``),
-    Eq. (P4): angle(R_1, R_2) = |log(R_1^T R_2)| <= |r_1 - r_2|  (SO(3) has non-negative curvature, so its
-              exponential map at R_g does not increase distances),
+    Eq. (P4): angle(R_1, R_2) = |log(R_1^T R_2)| <= |r_1 - r_2|  (exp at R_g does not increase
+              distances; the reason below),
 
 with l = ``ROTATION_LENGTH`` metres per radian (Eq. (P4): the curve R_g exp(r_1 + s (r_2 - r_1)),
 s in [0, 1], has body velocity J_r(r(s)) (r_2 - r_1), and J_r's singular values are 1, 1 and
@@ -176,11 +176,6 @@ class PoseChart:
         out[3:] = self._goal_over_l.dot(pin.Jexp3(z[3:6] * (-1.0 / self.length)).dot(zdot[3:6]))
         return out
 
-    def angular_velocity(self, z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
-        """omega = R J_r(r) r_dot of Eq. (P3), world axes [rad/s], for one point z (6,) and its
-        chart velocity zdot (6,); shape (3,)."""
-        return self.twist(np.asarray(z, dtype=np.float64), np.asarray(zdot, dtype=np.float64))[3:]
-
     def angle_to_goal(self, z: np.ndarray) -> np.ndarray:
         """The geodesic angle from R(z) to R_g [rad], z (..., 6) -> (...): |z_rot| / l where that is at
         most pi (Eq. (P1)), else the angle of R_g^T R(z) (a chart point past the half turn)."""
@@ -190,10 +185,6 @@ class PoseChart:
         if np.any(far):
             out[far] = geodesic_angle(self.goal_rotation, self.rotations(z[far]))
         return out
-
-    def angles_between(self, z1: np.ndarray, z2: np.ndarray) -> np.ndarray:
-        """angle(R(z1), R(z2)) [rad] of Eq. (P4) for chart points of shape (..., 6) -> (...)."""
-        return geodesic_angle(self.rotations(z1), self.rotations(z2))
 
     def to_dict(self) -> dict:
         return {"goal_q": [float(v) for v in self.goal_q], "length": float(self.length)}

@@ -245,8 +245,7 @@ class FieldController:
         if not self._pose:
             return self._At_s.dot(p - self._origin)
         assert self._chart is not None
-        rot = self._site_rot if self._from_site else self.kin.ee_rotation()
-        self._z = z = self._chart.point(self._At_s.dot(p - self._origin), self._rot_t.dot(rot))
+        self._z = z = self._chart.point(self._At_s.dot(p - self._origin), self._rot_t.dot(self.measured_rotation()))
         return z
 
     def measured_rotation(self) -> np.ndarray:

@@ -196,9 +196,11 @@ class Placement:
 
         Checked points: ``n_path`` samples of the task points, shape (..., d) (in order, warm
         started one from the next, as the controller would move), and the corners and edge
-        midpoints of their bounding box grown by ``margin_m``. Each must be reached by
-        ``solve_position_ik`` (with the tool ``rotation`` held, if given) to ``IK_TOLERANCE_M``,
-        with every joint ``JOINT_MARGIN`` of its range inside its limits.
+        midpoints of their bounding box grown by ``margin_m``; for a pose path instead, eight of the
+        sampled path points moved by ``margin_m`` along each world axis, in their own orientation.
+        Each must be reached by ``solve_pose_ik`` (with the tool ``rotation`` held, if given, or the
+        path's own for a pose path, then also to ``IK_TOLERANCE_RAD``) to ``IK_TOLERANCE_M``, with
+        every joint ``JOINT_MARGIN`` of its range inside its limits.
         """
         pts = np.asarray(points, dtype=np.float64).reshape(-1, self.dim)
         if not np.isfinite(pts).all():
@@ -207,18 +209,20 @@ class Placement:
         pd = self.position_dim
         lo, hi = pts[:, :pd].min(0), pts[:, :pd].max(0)
         grow = margin_m / self.scale
-        ring = _box_probe_points(lo - grow, hi + grow)
         hint = ("poses run where recorded: try --shift DX,DY,DZ" if self.chart is not None
                 else "try a smaller --size-m or another --plane")
         rots, source = None, np.zeros(0, dtype=int)
-        if self.chart is not None:
+        if self.chart is None:
+            ring = _box_probe_points(lo - grow, hi + grow)
+        else:
             # a pose path: the margin around each sampled path point along the world axes, in that
             # point's orientation (the box's corners are far from a winding 3-D path, and the arm need
             # not reach them with any one orientation)
             steps = np.concatenate([np.eye(3), -np.eye(3)]) * grow                     # (6, 3)
             source = np.repeat(np.arange(0, len(idx), max(1, len(idx) // 8)), len(steps))
             near = pts[idx][source]
-            ring = np.concatenate([near[:, :pd] + np.tile(steps, (len(source) // len(steps), 1)), near[:, pd:]], axis=1)
+            ring = np.concatenate([near[:, :pd] + np.tile(steps, (len(source) // len(steps), 1)), near[:, pd:]],
+                                  axis=1)
             rots = self.rotation_to_world(np.concatenate([pts[idx], ring]))
         q = robot.q_home.copy()
         solved: list[np.ndarray] = []   # the path points' joints: a pose path's margin points start there

@@ -374,7 +374,8 @@ def _demo_defaults(robot: RobotModel, demos: str | DemoSet, demo_index: int, pla
     demo_set = load_demos(demos) if isinstance(demos, str) else demos
     if not 0 <= demo_index < demo_set.n_demos:
         raise SimError(f"demo index {demo_index} out of range: {demo_set.name} has {demo_set.n_demos} demos")
-    if demo_set.has_orientation:   # poses run where recorded, as chart points (sim.placement)
+    demo_set_is_pose = demo_set.has_orientation
+    if demo_set_is_pose:   # poses run where recorded, as chart points (sim.placement)
         from lfd.pose import PoseChart, chart_demos
 
         chart = placement.chart if placement is not None and placement.chart is not None else PoseChart.of(demo_set)
@@ -382,7 +383,7 @@ def _demo_defaults(robot: RobotModel, demos: str | DemoSet, demo_index: int, pla
         if placement is None:
             placement = Placement.recorded(chart, robot)
             placement.check_reachable(robot, demo_set.x)
-    if rotation_ref is None and not robot.planar:
+    if rotation_ref is None and not robot.planar and not demo_set_is_pose:   # a pose task turns its tool
         kin = Kinematics(robot)
         kin.update(robot.q_home)
         rotation_ref = kin.ee_rotation().copy()

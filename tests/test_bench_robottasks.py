@@ -22,7 +22,7 @@ from lfd.bench.dmp import fit_cartesian_dmp, make_cartesian_config, mean_pose_de
 from lfd.cli import main
 from lfd.demos import ROBOTTASKS, robottasks
 from lfd.errors import ConfigError, DemoError
-from lfd.metrics import dtw
+from lfd.metrics import dtw, dtw_path
 from lfd.pose import PoseChart, geodesic_angle, quaternion_matrices
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -66,7 +66,7 @@ def test_dtw_path_is_the_alignment_of_lfd_metrics_dtw() -> None:
     rng = np.random.default_rng(3)
     for n, m in ((1, 1), (1, 7), (40, 55), (73, 31)):
         a, b = np.cumsum(rng.normal(size=(n, 3)), axis=0), np.cumsum(rng.normal(size=(m, 3)), axis=0)
-        path = rt.dtw_path(a, b)
+        path = dtw_path(a, b)
         assert tuple(path[0]) == (0, 0) and tuple(path[-1]) == (n - 1, m - 1)
         steps = np.diff(path, axis=0)
         assert ((steps >= 0) & (steps <= 1)).all() and (steps.sum(axis=1) >= 1).all()

@@ -18,7 +18,7 @@ Everything a number depends on, other than the learner and its seed, is a field 
   - ``dtw_mm``: DTW (``lfd.metrics.dtw``, the sum of distances along the best monotone alignment)
     between the rollout's and the demo's positions in mm, on every ``dtw_step``-th sample;
   - ``dtw_angle_deg``: the mean geodesic angle (``lfd.pose.geodesic_angle``) between the rollout's
-    and the demo's orientations over the pairs of that same alignment (``dtw_path``), degrees;
+    and the demo's orientations over the pairs of that same alignment (``lfd.metrics.dtw_path``), degrees;
   - ``rmse_mm``: time-aligned position RMSE, mm;
   - ``final_mm``, ``final_deg``: distance and geodesic angle of the rollout's last pose to the
     goal pose (goal, goal_q), mm and degrees.
@@ -165,45 +165,6 @@ def horizon(demos: DemoSet, protocol: RobotTasksProtocol) -> tuple[float, int]:
     return h, int(np.ceil(h / (protocol.horizon_stride * interval))) + 1
 
 
-def dtw_path(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The optimal warping path of ``lfd.metrics.dtw(a, b)`` (step 1): pairs (i, j) from (0, 0) to
-    (n - 1, m - 1) by steps (1, 0), (0, 1), (1, 1), minimising sum |a_i - b_j|.
-
-    Each row of the accumulated cost D[i, j] = c_ij + min(D[i-1, j-1], D[i-1, j], D[i, j-1]) is one
-    prefix-minimum: with S_j = sum_{l <= j} c_il and e_j = c_ij + min(D[i-1, j-1], D[i-1, j]),
-    D[i, j] = S_j + min_{k <= j} (e_k - S_k). The path is traced back from (n - 1, m - 1), the
-    diagonal step preferred on ties.
-
-    Parameters
-    ----------
-    a : array, shape (n, d)
-    b : array, shape (m, d)
-
-    Returns
-    -------
-    array of int, shape (L, 2)
-        The aligned index pairs in order, n, m <= L <= n + m - 1.
-    """
-    from scipy.spatial.distance import cdist
-
-    c = cdist(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
-    n, m = c.shape
-    acc = np.empty((n, m))
-    prev = np.full(m, np.inf)
-    for i in range(n):
-        s = np.cumsum(c[i])
-        above = np.minimum(prev, np.concatenate([[np.inf if i else 0.0], prev[:-1]]))
-        acc[i] = s + np.minimum.accumulate(c[i] + above - s)
-        prev = acc[i]
-    i, j = n - 1, m - 1
-    path = [(i, j)]
-    while i or j:
-        steps = [(i - 1, j - 1), (i - 1, j), (i, j - 1)]
-        i, j = min((p for p in steps if p[0] >= 0 and p[1] >= 0), key=lambda p: acc[p])
-        path.append((i, j))
-    return np.array(path[::-1], dtype=int)
-
-
 # ---------------------------------------------------------------- models
 
 class PoseModel(TypingProtocol):
@@ -322,7 +283,7 @@ def score(x: np.ndarray, q: np.ndarray, demos: DemoSet, dtw_step: int) -> dict[s
                 per[m].append(math.inf)
             continue
         a, b = 1000.0 * xi[::dtw_step], 1000.0 * dx[::dtw_step]
-        path = dtw_path(a, b)
+        path = metrics.dtw_path(a, b)
         per["dtw_mm"].append(metrics.dtw(1000.0 * xi, 1000.0 * dx, step=dtw_step))
         per["dtw_angle_deg"].append(float(np.mean(angles_deg(qi[::dtw_step][path[:, 0]],
                                                              dq[::dtw_step][path[:, 1]]))))

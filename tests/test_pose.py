@@ -189,3 +189,16 @@ def test_eval_takes_pose_demos_as_chart_points(tmp_path, small_pouring) -> None:
                          capture_output=True, text=True)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
     assert "trained on poses, the demos are positions" in bad.stderr
+
+
+def test_contraction_trains_on_demos_in_a_subspace() -> None:
+    # a 3-D path in a plane, and poses that turn about one fixed axis: X'X of Eq. (C2)'s fit is singular
+    flat = lfd.spiral3d(n_demos=3, n_samples=120, height=0.0, noise=0.0)
+    lfd.train("contraction", flat, seed=0, iterations=3)
+    d = robottasks("scoop")
+    t, x = d.t[:3, ::10], d.x[:3, ::10]
+    u = np.linspace(1.0, 0.0, t.shape[1])
+    axis = np.array([0.3, 0.0, 1.0]) / np.linalg.norm([0.3, 0.0, 1.0])
+    q = np.stack([np.stack([pin.Quaternion(pin.exp3(1.2 * s * axis)).coeffs()[[3, 0, 1, 2]] for s in u])] * 3)
+    f = lfd.train("contraction", DemoSet(t, x, q=q), seed=0, iterations=3)
+    assert all(bool(np.isfinite(p.detach().numpy()).all()) for p in f.module.parameters())

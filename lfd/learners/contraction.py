@@ -50,6 +50,7 @@ from lfd.validate import check_bools, check_ints
 # a faster rate makes every rollout arrive sooner, but fewer demos can be followed in time
 # (``feasible_rate`` is an upper bound on it).
 DEFAULT_RATE = 0.5
+GRAM_RCOND = 1e-10   # init_latent_from_data: X'X with a smaller eigenvalue ratio is taken as singular
 DEFAULT_MAX_CONDITION = 100.0  # b/a <= 100: the overshoot constant sqrt(b/a) is at most 10
 REST_TIMES = (0.1, 0.25, 0.5, 1.0)  # Eq. (C5): at T (1 + r) a demo rests at its goal (the origin)
 _F_EPS = 1e-24                      # Eq. (C5): inside |f|, keeps the direction's gradient finite at f = 0
@@ -160,6 +161,11 @@ class ContractionModule(nn.Module):
         # into visibly different trained models
         gram = (x[:, :, None] * x[:, None, :]).sum(0)               # X'X, (d, d)
         cross = (x[:, :, None] * v[:, None, :]).sum(0)              # X'V, (d, d)
+        ev = torch.linalg.eigvalsh(gram)
+        if not bool(ev[0] > GRAM_RCOND * ev[-1]):
+            # demos in a subspace (a planar 3-D path, a pose turning about one axis): X'X is
+            # singular, so a small ridge picks the least-squares fit of least norm there
+            gram = gram + GRAM_RCOND * float(ev[-1].clamp_min(1e-300)) * torch.eye(self.dim, dtype=x.dtype)
         a_ls = torch.linalg.solve(gram, cross).T                     # v ~ A_ls x
         self.skew.copy_((a_ls - a_ls.T) / 4)           # W = skew(A_ls) / 2, so W - W' = skew(A_ls)
         if self.damping is not None:

@@ -1,106 +1,191 @@
 #!/usr/bin/env python
-"""Obstacles on the arm: the Panda runs an avoiding field around a sphere on its path. Prints, asserts nothing.
+"""Whole-arm safety on the Panda: seeded obstacle scenes on the path, every learner, with and
+without a push; writes reports/obstacles_arm.md.
 
-For each learner (contraction, NODE; trained once on the default spiral and cached like
-scripts/demo_arm.py), a sphere is put on the demonstrated path (the mean demo at ``--at`` of its
-arc length), in the scene as a MuJoCo geom and in the field (``lfd.avoid``) with a clearance
-margin for the hand around the tool point (``--hand-clearance-mm``). Scenarios: none, the
-standard push (20 N, 0.2 s, on the hand) and the goal moved by 20% of the extent mid-run (at
-``--shift-at`` s, blended over 0.5 s, ``lfd.goal.shift_goal``; the loop passes the time to the
-field). Per run: robot-obstacle contacts (the joint trajectory replayed
-through MuJoCo's collision detection, ``sim.obstacles.obstacle_contacts``), the smallest clearance,
-the final goal error, joint-limit violations and the peak joint speed against the limits. The bare
-field (no avoidance) is run too, to show what the obstacle does without it (both with the
-controller's ``--lead-ms`` phase lead, ``sim.controller.Gains.lead_s``, which keeps the arm from
-lagging outward where the avoiding field turns fast), and the bare field with
-the goal shift in a scene without the sphere ("free"). The peak joint speed is
-the largest measured |qdot_j| / v_max_j over the run.
+    .venv/bin/python scripts/panda_obstacles.py                    # 50 scenes
+    .venv/bin/python scripts/panda_obstacles.py --placements 5     # a quick look
 
-Usage: python scripts/panda_obstacles.py [--radius 0.05] [--at 0.2] [--hand-clearance-mm 22]
+The demos are a user's 3-demo spiral (extent 0.23 units, radius 0.13). Scene 0 is that user's
+case: a sphere of 6 % of the extent on the first demo at 40 % of its arc length, no margin.
+Scenes 1.. are ``lfd.obstacles.random_scene`` (1 to 3 spheres or boxes, a quarter beside the
+goal). Every run uses the job's defaults (``sim.run_job``): the field keeps the tool point the
+hand's size (``sim.collision.hand_margin_m``) plus each obstacle's margin away, and the IK's
+collision dampers keep every arm geom clear (``sim.collision``). Per run: contact steps between
+any robot geom and any obstacle (the joints replayed through MuJoCo's collision detection), the
+final goal error, ``blocked``, the smallest clearance and the real-time factor. Runs are cached
+(``--cache``), so a killed sweep resumes.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import sys
+from pathlib import Path
+from typing import Any
 
-import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 os.environ.setdefault("MUJOCO_GL", "egl")
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
-import lfd  # noqa: E402
-import sim  # noqa: E402
-from lfd.cache import cached_field  # noqa: E402
-from lfd.goal import shift_goal  # noqa: E402
-from lfd.obstacles import Sphere, avoid  # noqa: E402
-from robots import load_robot  # noqa: E402
-from sim.controller import Gains  # noqa: E402
-from sim.obstacles import obstacle_contacts  # noqa: E402
+LEARNERS = ("contraction", "node", "tracking")
+SCENARIOS = ("none", "push")
+GOAL_MM = 5.0
 
 
-def on_path(demos: lfd.DemoSet, fraction: float, radius: float, margin: float) -> Sphere:
-    """A sphere of ``radius`` (fraction of the extent) centred on the mean demo at ``fraction`` of its length."""
-    x = demos.x.mean(axis=0)
+def spiral3() -> Any:
+    import lfd
+
+    return lfd.spiral(n_demos=3, radius=0.13)
+
+
+def user_case(demos: Any) -> list:
+    """The user's sphere: 6 % of the extent, on demo 0 at 40 % of its arc length."""
+    import numpy as np
+
+    from lfd.obstacles import Sphere
+
+    x = demos.x[0]
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(x, axis=0), axis=1))])
-    extent = demos.extent
-    return Sphere(x[np.searchsorted(s, fraction * s[-1])], radius * extent, margin=margin)
+    return [Sphere(x[np.searchsorted(s, 0.4 * s[-1])], 0.06 * demos.extent)]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--radius", type=float, default=0.05, help="sphere radius, fraction of the demos' extent")
-    ap.add_argument("--at", type=float, default=0.2, help="fraction of the mean demo's arc length")
-    ap.add_argument("--hand-clearance-mm", type=float, default=22.0,
-                    help="margin the field keeps around the sphere for the hand, mm")
-    ap.add_argument("--learners", default="contraction,node")
-    ap.add_argument("--settle", type=float, default=1.5, help="seconds the run continues after the demo duration")
-    ap.add_argument("--shift-at", type=float, default=2.0, help="time of the goal shift, s")
-    ap.add_argument("--lead-ms", type=float, default=10.0,
-                    help="the controller's phase lead on the task velocity with the sphere (sim.controller.Gains)")
-    args = ap.parse_args()
+class Cell:
+    """One learner on one scene, with both scenarios."""
 
-    demos = lfd.spiral()
+    def __init__(self, learner: str, scene: int) -> None:
+        from lfd.bench.protocol import stable_hash
+
+        self.learner, self.scene = learner, scene
+        self.hash = stable_hash({"v": 1, "learner": learner, "scene": scene, "scenarios": SCENARIOS})
+        self.stem = f"{learner}__scene{scene:03d}"
+
+
+def compute(cell: Cell) -> tuple[dict, bytes]:
+    import numpy as np
+
+    import lfd
+    import sim
+    from lfd.cache import cached_field
+    from lfd.obstacles import random_scene
+    from robots import load_robot
+    from sim.collision import hand_margin_m
+    from sim.controller import Gains
+    from sim.obstacles import obstacle_contacts
+    from sim.pipeline import OBSTACLE_LEAD_S, grown
+
+    demos = spiral3()
     robot = load_robot("panda")
-    placement = sim.Placement.auto(robot, demos.x)
-    extent = demos.extent
-    margin = args.hand_clearance_mm / 1000.0 / placement.scale
-    sphere = on_path(demos, args.at, args.radius, margin)
-    print(f"sphere: centre {np.round(sphere.center, 3).tolist()} radius {sphere.radius:.3f} units "
-          f"({1000 * sphere.radius * placement.scale:.1f} mm), margin {margin:.3f} units "
-          f"({args.hand_clearance_mm:.0f} mm); path extent {extent:.2f} units "
-          f"({1000 * extent * placement.scale:.0f} mm)")
-    exp = sim.Experiment(robot, demos, placement=placement, settle_s=args.settle, obstacles=[sphere],
-                         gains=Gains(lead_s=args.lead_ms / 1000.0))
-    scene = exp.robot
-    free = sim.Experiment(robot, demos, placement=placement, settle_s=args.settle)
-    angle = np.random.default_rng(0).uniform(0.0, 2.0 * np.pi)
-    dx = 0.2 * extent * np.array([np.cos(angle), np.sin(angle)])
-    print(f"goal shift: {np.round(dx, 3).tolist()} units ({1000 * 0.2 * extent * placement.scale:.1f} mm) "
-          f"at t = {args.shift_at:g} s")
-    print(f"{'learner':<12} {'field':<6} {'scenario':<6} {'contacts':>8} {'clear mm':>9} {'goal mm':>8} "
-          f"{'jl viol':>7} {'peak |qd|/limit':>15}")
-    for learner in args.learners.split(","):
-        field, _, _ = cached_field(learner, demos, 0, {}, progress=True)
-        moved = shift_goal(field, args.shift_at, dx)
-        for name, f, g in (("bare", field, moved), ("avoid", avoid(field, [sphere]), avoid(moved, [sphere]))):
-            for scen, run_field, perts in (("none", f, None), ("push", f, None), ("goal", g, ())):
-                r = exp.run(run_field, scen, perturbations=perts)
-                ro = r.trace
-                rep = obstacle_contacts(scene, ro.q, ro.t)
-                peak = float(np.max(np.abs(ro.qdot) / np.asarray(robot.v_max)))
-                print(f"{learner:<12} {name:<6} {scen:<6} {rep.contacts:>8d} {1000 * rep.min_clearance_m:>9.2f} "
-                      f"{1000 * r.metrics['final_goal_error_m']:>8.2f} {r.metrics['joint_limit_violations']:>7d} "
-                      f"{peak:>15.3f}", flush=True)
-        r = free.run(moved, "goal", perturbations=())   # the goal shift alone, in a scene without the sphere
-        peak = float(np.max(np.abs(r.trace.qdot) / np.asarray(robot.v_max)))
-        print(f"{learner:<12} {'free':<6} {'goal':<6} {'-':>8} {'-':>9} {1000 * r.metrics['final_goal_error_m']:>8.2f} "
-              f"{r.metrics['joint_limit_violations']:>7d} {peak:>15.3f}", flush=True)
+    hand = hand_margin_m(robot)
+    probe = sim.Experiment(robot, demos, clearance=None)
+    scale = probe.placement.scale
+    scene = user_case(demos) if cell.scene == 0 else random_scene(demos, cell.scene, extra_margin=hand / scale)
+    exp = sim.Experiment(robot, demos, obstacles=scene, gains=Gains(lead_s=OBSTACLE_LEAD_S))
+    field, _, _ = cached_field(cell.learner, demos, 0, {}, verbose=False)
+    avoiding = lfd.avoid(field, grown(scene, hand / scale))
+    runs = []
+    for name in SCENARIOS:
+        r = exp.run(avoiding, name)
+        c = obstacle_contacts(exp.robot, r.trace.q, r.trace.t, r.trace.mocap_pos)
+        m = r.metrics
+        runs.append({"scenario": name, "contact_steps": c.steps_in_contact, "contacts": c.contacts,
+                     "pairs": list(c.pairs), "min_clearance_m": c.min_clearance_m,
+                     "final_goal_error_mm": m["final_goal_error_m"] * 1e3, "blocked": bool(m.get("blocked")),
+                     "guard_active_s": m.get("guard_active_s"), "arm_min_clearance_m": m.get("arm_min_clearance_m"),
+                     "realtime_factor": m["realtime_factor"], "control_step_us": m["control_step_us"]})
+    record = {"hash": cell.hash, "learner": cell.learner, "scene": cell.scene,
+              "obstacles": [o.describe() for o in scene], "hand_margin_m": hand, "scale_m_per_unit": scale,
+              "runs": runs}
+    buf = io.BytesIO()
+    np.savez_compressed(buf, none=np.zeros(0))
+    return record, buf.getvalue()
+
+
+def main(argv: list[str] | None = None) -> int:
+    from lfd.bench.runner import run_cells
+    from lfd.cache import cached_field
+    from lfd.errors import LfdError
+    from lfd.io import atomic_path
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--placements", type=int, default=50)
+    p.add_argument("--cache", default=str(ROOT / "out" / "panda_obstacles"))
+    p.add_argument("--report", default=str(ROOT / "reports" / "obstacles_arm.md"))
+    a = p.parse_args(argv)
+    if not 1 <= a.placements <= 1000:
+        print("panda_obstacles: --placements must be between 1 and 1000", file=sys.stderr)
+        return 2
+    try:
+        demos = spiral3()
+        for learner in LEARNERS:
+            cached_field(learner, demos, 0, {}, progress=sys.stderr.isatty())
+        cells = [Cell(learner, i) for i in range(a.placements) for learner in LEARNERS]
+        result = run_cells(cells, a.cache, workers=1, compute=compute, desc="panda")   # in this process
+    except LfdError as e:
+        print(f"panda_obstacles: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("panda_obstacles: interrupted", file=sys.stderr)
+        return 130
+    lines = report(result.records, a.placements)
+    if result.failed:
+        lines += ["", f"Failed cells: {result.failed}"]
+    with atomic_path(Path(a.report)) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+    print(f"wrote {a.report}")
+    return 0
+
+
+def report(recs: list[dict], placements: int) -> list[str]:
+    import numpy as np
+
+    hand = recs[0]["hand_margin_m"] if recs else float("nan")
+    scale = recs[0]["scale_m_per_unit"] if recs else float("nan")
+    lines = ["# Whole-arm safety on the Panda: obstacle scenes, every learner, with and without a push", "",
+             f"Made by `scripts/panda_obstacles.py`. {placements} scenes on a user's 3-demo spiral "
+             f"(placed at {scale:.3f} m per unit): scene 0 is the user's case (a sphere of 6 % of the extent "
+             "on the path, no margin), the others `lfd.obstacles.random_scene` (1-3 spheres or boxes, "
+             "3-10 % of the extent, margins 0-4 %, a quarter beside the goal). Default job options: the "
+             f"field keeps the tool point the hand's size ({hand * 1e3:.1f} mm, `sim.collision.hand_margin_m`) "
+             "plus the obstacle's margin away; collision dampers in the IK keep every arm geom 10 mm clear "
+             "(`sim.collision`). *Contact steps*: replayed states in which any robot geom touches any "
+             f"obstacle. *Reached*: final tool position within {GOAL_MM:g} mm of the goal. *Blocked*: the run "
+             "ended further away with a damper holding the arm (metrics.json `blocked`).", "",
+             "| learner | scenario | runs | contact steps | reached | blocked | neither | worst goal error (mm) "
+             "| min clearance (mm) | median RTF |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for learner in LEARNERS:
+        for scen in SCENARIOS:
+            runs = [(r, x) for r in recs if r["learner"] == learner for x in r["runs"] if x["scenario"] == scen]
+            if not runs:
+                continue
+            steps = sum(x["contact_steps"] for _, x in runs)
+            reached = sum(x["final_goal_error_mm"] <= GOAL_MM for _, x in runs)
+            blocked = sum(x["blocked"] and x["final_goal_error_mm"] > GOAL_MM for _, x in runs)
+            neither = len(runs) - reached - blocked
+            worst = max(x["final_goal_error_mm"] for _, x in runs)
+            clear = min(x["min_clearance_m"] for _, x in runs) * 1e3
+            rtf = float(np.median([x["realtime_factor"] for _, x in runs]))
+            share = 100 * reached / len(runs)
+            lines.append(f"| {learner} | {scen} | {len(runs)} | {steps} | {reached} ({share:.0f} %) "
+                         f"| {blocked} | {neither} | {worst:.2f} | {clear:.1f} | {rtf:.0f} |")
+    case = [r for r in recs if r["scene"] == 0]
+    if case:
+        lines += ["", "The user's case (scene 0), default options:", "",
+                  "| learner | scenario | contact steps | goal error (mm) | min clearance (mm) |",
+                  "|---|---|---|---|---|"]
+        for r in case:
+            for x in r["runs"]:
+                lines.append(f"| {r['learner']} | {x['scenario']} | {x['contact_steps']} | "
+                             f"{x['final_goal_error_mm']:.2f} | {x['min_clearance_m'] * 1e3:.1f} |")
+    odd = [(r, x) for r in recs for x in r["runs"] if x["contact_steps"] or x["final_goal_error_mm"] > GOAL_MM]
+    lines += ["", f"Runs that touch or miss the goal: {len(odd)}."]
+    for r, x in odd[:30]:
+        lines.append(f"- {r['learner']} / {x['scenario']}, scene {r['scene']}: {x['contact_steps']} contact steps, "
+                     f"goal {x['final_goal_error_mm']:.1f} mm, blocked {x['blocked']}; " + "; ".join(r["obstacles"]))
+    return lines
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except KeyboardInterrupt:
-        sys.exit(130)
+    sys.exit(main())

@@ -171,7 +171,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--push-direction", type=vector3, metavar="X,Y,Z", help="world direction (default: from --seed)")
     p.add_argument("--obstacle", action="append", default=[], metavar="SHAPE:NUMBERS",
                    help="an obstacle in task units (repeatable): sphere:x,y[,z],r, box:x,y[,z],hx,hy[,hz] or "
-                        "capsule:x1,y1[,z1],x2,y2[,z2],r, optionally ';margin=M' and ';velocity=VX,VY[,VZ]'")
+                        "capsule:x1,y1[,z1],x2,y2[,z2],r, optionally ';margin=M' and ';velocity=VX,VY[,VZ]'; "
+                        "the field keeps the tool point the hand's size plus M clear of it")
+    p.add_argument("--no-arm-clearance", action="store_true",
+                   help="keep only the tool point clear of obstacles and table (no collision dampers in the IK "
+                        "for the rest of the arm, no hand margin)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--goal-shift", metavar="T:DX,DY[,DZ]", help="move the goal by DX (task units) at T s")
     g.add_argument("--goal-path", metavar="FILE", help="the goal follows this trajectory: CSV t,x,y[,z] or NPZ t, x")
@@ -194,7 +198,8 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
         origin=args.origin, scale=args.scale, shift=args.shift,
         push=PushSpec(args.push_force, args.push_start, args.push_duration, args.push_direction),
         obstacles=tuple(args.obstacle), goal_shift=args.goal_shift, goal_path=args.goal_path,
-        control_hz=args.control_hz, iters=args.iters, quiet=args.quiet, command=tuple(command))
+        arm_clearance=not args.no_arm_clearance, control_hz=args.control_hz, iters=args.iters, quiet=args.quiet,
+        command=tuple(command))
 
 
 def _fmt(value: Any, scale: float = 1.0, digits: int = 2) -> str:

@@ -41,8 +41,10 @@ import numpy as np
 import pinocchio as pin
 
 from robots import DifferentialIK, RobotModel
+from robots.ik.constrained import ConstrainedIK, QpGains
 from robots.loader import ACTUATIONS as ACTUATIONS  # re-exported: the actuations a robot is loaded with
 from sim._kernel_layout import HEADER as _HEADER  # the kernel parameter vector's head
+from sim.collision import ArmClearance, Clearance
 from sim.errors import SimError
 from sim.placement import Placement
 
@@ -106,11 +108,18 @@ class FieldController:
         The simulated model (default ``robot.mj_model``; e.g. a scene with obstacles).
     dynamics : str
         Computed torque from ``"mujoco"`` (default) or ``"pinocchio"`` (module docstring).
+    clearance : Clearance, optional
+        Keep every collision geom of the arm clear of the scene's obstacles, its table and the arm
+        itself (``sim.collision``): while a pair is within the influence distance, ``fast_command``
+        solves the IK as the QP of ``robots.ik.constrained`` with one velocity damper per pair;
+        ``guard`` is the ``ArmClearance``, ``guard_active`` whether the last step's QP had a damper
+        at its bound. Needs ``model`` and ``data`` (``fast_command``).
     """
 
     def __init__(self, robot: RobotModel, placement: Placement, control_dt: float, ik: str = "dls",
                  rotation_ref: np.ndarray | None = None, gains: Gains = Gains(), feedforward: bool = True,
-                 mj_model: mujoco.MjModel | None = None, dynamics: str = "mujoco") -> None:
+                 mj_model: mujoco.MjModel | None = None, dynamics: str = "mujoco",
+                 clearance: Clearance | None = None) -> None:
         model = robot.mj_model if mj_model is None else mj_model
         if dynamics not in DYNAMICS:
             raise SimError(f"unknown inverse dynamics '{dynamics}'; known: {', '.join(DYNAMICS)}")
@@ -131,6 +140,15 @@ class FieldController:
         self._setup_geometry(placement, gains)
         self._setup_actuation(model, gains, feedforward)
         self._setup_fast_path(model, ik)
+        self.guard: ArmClearance | None = None
+        self.guard_active = False
+        if clearance is not None:
+            dls = getattr(self.ik._impl, "gains", None)
+            self.guard = ArmClearance(model, robot, clearance)
+            self._cik = ConstrainedIK(robot, tuple(self.ik.rows), self.kin, QpGains(
+                posture_gain=float(getattr(dls, "posture_gain", 1.0)),
+                limit_margin=float(getattr(dls, "limit_margin", 0.02)),
+                speed_fraction=float(getattr(dls, "speed_fraction", 0.97))))
 
     def _setup_geometry(self, placement: Placement, gains: Gains) -> None:
         """The twist's constants: o (3,), s A (3, d), A^T / s (d, 3), k_n n and n (3,), n . o, k_r."""
@@ -318,6 +336,14 @@ class FieldController:
         (``measure(q)`` called; with ``uses_mj_dynamics`` the step's ``mj_step1`` done): twist, DLS
         and command in one compiled call, else the Python path (same results, module docstring)."""
         v = self.lead(v)
+        rows = None
+        if self.guard is not None:
+            A, b = self.guard.rows(data)
+            self.guard_active = False
+            rows = (A, b) if len(b) else None
+        if rows is not None and not self._fast_ok:
+            self._guarded(model, data, q, v, *rows)
+            return
         if self._fast_ok:
             if data is not self._data:
                 self.bind(data)
@@ -326,8 +352,15 @@ class FieldController:
             else:
                 _, pos, rot = self.kin._pose or self.kin._placement()
             vk = self.pose_twist(v) if self._pose else v
-            if self._kernel(self.kin._jac, pos, rot, vk, q, self._qvel, self._bias, self._qdot_prev, self._prm,
-                            self._out) == 0:
+            if rows is not None:
+                prev = self._qdot_prev.copy()
+            status = self._kernel(self.kin._jac, pos, rot, vk, q, self._qvel, self._bias, self._qdot_prev,
+                                  self._prm, self._out)
+            if rows is not None and (status != 0 or np.any(rows[0].dot(self._qdot_ref) > rows[1])):
+                self._qdot_prev = prev   # a damper binds: the IK as a QP with the dampers (``sim.collision``)
+                self._guarded(model, data, q, v, *rows)
+                return
+            if status == 0:
                 if self._torque:
                     mujoco.mj_mulM(model, data, self._macc, self._acc_full)
                     if self._ctrl_arm is not None and self._macc_arm is not None:
@@ -340,6 +373,14 @@ class FieldController:
                     data.ctrl[self.robot.mj_actuator_ids] = self._base
                 return
         qdot_ref = self.solve_ik(q, self.twist(v))   # v already led
+        data.ctrl[self.robot.mj_actuator_ids] = self.actuate(q, data.qvel[self._dofs], qdot_ref, model, data)
+
+    def _guarded(self, model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray, v: np.ndarray,
+                 A: np.ndarray, b: np.ndarray) -> None:
+        """``data.ctrl`` from the IK QP with the damper rows A qdot <= b (``robots.ik.constrained``)
+        for the (led) task velocity v at the measured q."""
+        qdot_ref, _ = self._cik.solve(q, self.twist(v), self.dt, A, b, kin=self.kin)
+        self.guard_active = bool(self._cik.active.any())
         data.ctrl[self.robot.mj_actuator_ids] = self.actuate(q, data.qvel[self._dofs], qdot_ref, model, data)
 
     def bind(self, data: mujoco.MjData) -> None:

@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from lfd import DemoSet
@@ -33,10 +34,11 @@ from lfd.integrate import rk4, rk4_phase
 from lfd.obstacles import Obstacle
 from robots import Kinematics, RobotModel
 from sim.camera import CameraSpec
+from sim.collision import TABLE_GEOM, Clearance
 from sim.controller import Gains
 from sim.errors import SimError
 from sim.loop import FPS, Hold, PhaseLoop, RunTrace, execute
-from sim.metrics import RECOVERY_TOLERANCE_M, orientation_metrics, recovery_time, run_metrics
+from sim.metrics import RECOVERY_TOLERANCE_M, clearance_metrics, orientation_metrics, recovery_time, run_metrics
 from sim.obstacles import mocap_path, with_obstacles
 from sim.perturbations import GoalShift, JointVelocityNoise, Perturbation, Push, StartOffset
 from sim.placement import Placement, base_position
@@ -128,13 +130,17 @@ class Experiment:
         Task-space obstacles put into the robot's scene (``sim.obstacles.with_obstacles``); moving
         ones move with the run (mocap bodies, ``sim.obstacles.mocap_path``; ``RunTrace.mocap_pos``).
         The field avoids them only if it is built to (``lfd.avoid``).
+    clearance : Clearance, None or "auto"
+        Whole-arm collision dampers in the IK (``sim.collision``); ``"auto"`` (default): the
+        default ``Clearance`` when the scene has obstacles or a table, else none.
     """
 
     def __init__(self, robot: RobotModel, demos: DemoSet, *, placement: Placement | None = None,
                  plane: str = "auto", size_m: float | None = None, demo_index: int = 0,
                  control_hz: float = 500.0, ik: str = "dls",
                  settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True,
-                 fps: float = FPS, obstacles: Sequence[Obstacle] = ()) -> None:
+                 fps: float = FPS, obstacles: Sequence[Obstacle] = (),
+                 clearance: Clearance | str | None = "auto") -> None:
         self.robot, self.demos = robot, demos
         chart = None
         if demos.has_orientation:
@@ -168,7 +174,14 @@ class Experiment:
         self.demo_rotations = self.placement.rotation_to_world(demos.x[demo_index]) if self.placement.pose else None
         self.start = demos.x[demo_index, 0].copy()
         self.duration_s = float(self.demo_t[-1]) + settle_s
-        self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, gains=gains, feedforward=feedforward)
+        if isinstance(clearance, str):
+            if clearance != "auto":
+                raise SimError(f"clearance must be a Clearance, None or 'auto', not '{clearance}'")
+            table = mujoco.mj_name2id(robot.mj_model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM) >= 0
+            clearance = Clearance() if (self.obstacles or table) else None
+        self.clearance = clearance
+        self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, gains=gains, feedforward=feedforward,
+                                            clearance=clearance)
         self.physics = ArmPhysics.from_robot(robot)
         self.base = base_position(robot)
         self.fps = float(fps)   # the rollouts record the full qpos at this video frame rate
@@ -269,6 +282,9 @@ class Experiment:
         if ro.phase is not None:
             free_phase = None if window is None or cached is None else cached[2]
             metrics.update(self.phase_metrics(field, ro, window, free_phase))
+        if ro.arm_clearance_m is not None and ro.guard_active is not None:
+            metrics.update(clearance_metrics(ro.t, ro.arm_clearance_m, ro.guard_active,
+                                             metrics["final_goal_error_m"]))
         return RunResult(field.learner, name, ro, ref, metrics, unperturbed, ro.command, tuple(perts),
                          self.goal_path(field, ro))
 
@@ -334,7 +350,9 @@ class Experiment:
 
     def describe(self) -> dict[str, Any]:
         """The experiment's settings, for the metrics JSON."""
-        opts = dict(self.options, gains=dataclasses.asdict(self.options["gains"]))
+        clearance = self.options["clearance"]
+        opts = dict(self.options, gains=dataclasses.asdict(self.options["gains"]),
+                    clearance=None if clearance is None else dataclasses.asdict(clearance))
         return {"robot": self.robot.name, "ee_frame": self.robot.ee_frame, "demos": self.demos.name,
                 "demo_index": self.demo_index, "duration_s": self.duration_s,
                 "placement": self.placement.to_dict(), "actuation": self.robot.actuation, **opts}

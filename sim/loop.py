@@ -101,6 +101,12 @@ class RunTrace:
         ``frame_mocap`` gives them at the video frames.
     ee_rot : ndarray, shape (K+1, 3, 3), or None
         A pose task's measured tool rotations, world (None for a position task).
+    arm_clearance_m : ndarray, shape (K+1,), or None
+        With whole-arm clearance (``sim.collision``): the smallest distance between an arm geom and
+        the scene or the arm itself that the step's dampers saw, m (inf: nothing within their
+        influence distance; the last row: inf). None without it.
+    guard_active : ndarray of bool, shape (K+1,), or None
+        Steps at which a damper held the IK at its bound.
     """
 
     t: np.ndarray
@@ -126,6 +132,8 @@ class RunTrace:
     cpu_s: float | None = None
     mocap_pos: np.ndarray | None = None
     ee_rot: np.ndarray | None = None
+    arm_clearance_m: np.ndarray | None = None
+    guard_active: np.ndarray | None = None
 
     def steps_at(self, times: np.ndarray) -> np.ndarray:
         """Index, shape (F,), of the control step nearest each of ``times`` (F,), s (the last step
@@ -219,7 +227,7 @@ def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
     env.reset()
     m, d = env.physics.model.ptr, env.physics.data.ptr
     rec = _Record.allocate(task.n_steps, task.control_dt, task.robot.n, m.nq, task.placement.dim, fps,
-                           task.placement.pose)
+                           task.placement.pose, task.controller.guard is not None)
     hits0 = getattr(task.controller.ik, "limit_hits", 0)
     dt = task.control_dt
     h0, h1 = (-1, -1) if hold is None else (int(round(hold.start_s / dt)),
@@ -252,6 +260,7 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
     fsteps, Q, Qd, P, V, F, FQ, steps = rec.frame_steps, rec.q, rec.qdot, rec.ee, rec.command, rec.force, \
         rec.frame_qpos, rec.step_s
     ROT = rec.rot   # a pose task's tool rotations (None otherwise)
+    guard, CLR, GA = ctl.guard, rec.clearance, rec.guarded   # whole-arm clearance (None without it)
     warn, bad = d.warning.number, [int(w) for w in _DIVERGENCE]
     j, next_frame, q_hold = 0, int(fsteps[0]), None
     clock, split = time.perf_counter, ctl.uses_mj_dynamics
@@ -286,6 +295,9 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
             x = x - shift
         v = V[k] = field_fn(x, k * dt) if timed else field_fn(x)
         apply(d, q, None, v, m)
+        if guard is not None and CLR is not None and GA is not None:
+            CLR[k] = guard.min_distance
+            GA[k] = ctl.guard_active
         if push_body >= 0:
             F[k] = force
         if split:
@@ -345,14 +357,18 @@ class _Record:
     frame_steps: np.ndarray
     frame_qpos: np.ndarray
     rot: np.ndarray | None = None
+    clearance: np.ndarray | None = None
+    guarded: np.ndarray | None = None
 
     @classmethod
-    def allocate(cls, K: int, dt: float, n: int, nq: int, dim: int, fps: float, pose: bool = False) -> _Record:
+    def allocate(cls, K: int, dt: float, n: int, nq: int, dim: int, fps: float, pose: bool = False,
+                 guard: bool = False) -> _Record:
         ftimes = frame_times(K * dt, fps)
         fsteps = np.minimum(np.round(ftimes / dt).astype(int), K)
         return cls(np.empty((K + 1, n)), np.empty((K + 1, n)), np.empty((K + 1, 3)), np.empty((K + 1, dim)),
                    np.zeros((K + 1, 3)), np.empty(K), ftimes, fsteps, np.empty((len(fsteps), nq)),
-                   np.empty((K + 1, 3, 3)) if pose else None)
+                   np.empty((K + 1, 3, 3)) if pose else None,
+                   np.full(K + 1, np.inf) if guard else None, np.zeros(K + 1, dtype=bool) if guard else None)
 
 
 def _to_trace(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.ndarray], wall: float,
@@ -373,7 +389,8 @@ def _to_trace(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.
         goal_world=task.goal_world.copy(), push_window_s=s.push_window_s,
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,
         ik_limit_hits=ik_limit_hits, joint_limit_violations=violations,
-        phase=phase, hold_window_s=hold_window, cpu_s=cpu, mocap_pos=s.mocap_pos, ee_rot=rec.rot)
+        phase=phase, hold_window_s=hold_window, cpu_s=cpu, mocap_pos=s.mocap_pos, ee_rot=rec.rot,
+        arm_clearance_m=rec.clearance, guard_active=rec.guarded)
 
 
 def _divergence_message(d: mujoco.MjData, k: int, dt: float, bad: list[int]) -> str:

@@ -19,6 +19,8 @@ A pose task adds the same scores for the tool's orientation, in degrees of geode
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from lfd import metrics as lfd_metrics
@@ -87,3 +89,26 @@ def orientation_metrics(t: np.ndarray, rot: np.ndarray, reference: np.ndarray, g
     return {"tracking_rmse_deg": float(np.sqrt(np.mean(track ** 2))),
             "imitation_orientation_error_deg": float(np.sqrt(np.mean(imit ** 2))),
             "final_goal_error_deg": float(np.degrees(geodesic_angle(rot[-1], goal)))}
+
+
+#: a run is ``blocked`` when it ends further than this from its goal ...
+BLOCKED_GOAL_M = 0.005
+#: ... with a collision damper holding the arm within this last part of the run, s
+BLOCKED_WINDOW_S = 0.5
+
+
+def clearance_metrics(t: np.ndarray, clearance: np.ndarray, active: np.ndarray, goal_error_m: float
+                      ) -> dict[str, Any]:
+    """Scores of whole-arm clearance (``sim.collision``): ``arm_min_clearance_m`` (the smallest
+    arm-scene or arm-arm distance the dampers saw; None if nothing came within their reach),
+    ``guard_active_s`` (time with a damper at its bound) and ``blocked``: the run ends more than
+    ``BLOCKED_GOAL_M`` from its goal while a damper held the arm in its last ``BLOCKED_WINDOW_S``.
+
+    t : (K+1,) s; clearance : (K+1,) m (inf: nothing within reach); active : (K+1,) bool.
+    """
+    dt = float(t[1] - t[0]) if len(t) > 1 else 0.0
+    finite = clearance[np.isfinite(clearance)]
+    late = t >= t[-1] - BLOCKED_WINDOW_S
+    return {"arm_min_clearance_m": float(finite.min()) if finite.size else None,
+            "guard_active_s": float(np.count_nonzero(active) * dt),
+            "blocked": bool(goal_error_m > BLOCKED_GOAL_M and np.any(active[late]))}

@@ -1,6 +1,7 @@
 """Task-space obstacles (``lfd.obstacles``) as MuJoCo geoms, and the arm's contacts with them.
 
-The field avoids an obstacle in task space (the tool point is kept out of it); this module puts
+The field avoids an obstacle in task space (the tool point is kept out of it; ``sim.collision``
+keeps the rest of the arm out through the IK); this module puts
 the same obstacle into the robot's scene, so it is drawn in videos, physically collides with the
 arm, and can be checked: ``obstacle_contacts`` replays a run's joint trajectory through
 MuJoCo's collision detection and reports every robot-obstacle contact and the smallest clearance
@@ -163,7 +164,7 @@ def obstacle_geom_ids(model: mujoco.MjModel) -> np.ndarray:
                      if (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(PREFIX)], dtype=int)
 
 
-def _robot_geom_ids(model: mujoco.MjModel) -> np.ndarray:
+def robot_geom_ids(model: mujoco.MjModel) -> np.ndarray:
     """Collidable geoms on bodies other than the world body and the moving obstacles' mocap
     bodies, shape (m,)."""
     return np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] != 0
@@ -191,7 +192,7 @@ def obstacle_contacts(robot: RobotModel, q: np.ndarray, t: np.ndarray | None = N
     model = robot.mj_model
     data = mujoco.MjData(model)
     obstacles = obstacle_geom_ids(model)
-    robot_geoms = _robot_geom_ids(model)
+    robot_geoms = robot_geom_ids(model)
     if obstacles.size == 0:
         return ContactReport(0, 0, None, float("inf"), ())
     is_obstacle = np.zeros(model.ngeom, dtype=bool)
@@ -212,6 +213,10 @@ def obstacle_contacts(robot: RobotModel, q: np.ndarray, t: np.ndarray | None = N
         hits = 0
         for c in data.contact[:data.ncon]:
             g1, g2 = int(c.geom1), int(c.geom2)
+            if c.dist >= 0.0:   # within a detection margin (``sim.collision``), not touching
+                if (is_obstacle[g1] and is_robot[g2]) or (is_obstacle[g2] and is_robot[g1]):
+                    clearance = min(clearance, float(c.dist))
+                continue
             if (is_obstacle[g1] and is_robot[g2]) or (is_obstacle[g2] and is_robot[g1]):
                 hits += 1
                 r, o = (g2, g1) if is_obstacle[g1] else (g1, g2)

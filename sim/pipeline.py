@@ -36,6 +36,7 @@ from lfd.field import Field, is_phased
 from lfd.obstacles import MIN_GOAL_GAMMA, Obstacle, parse_obstacle
 from robots import RobotError, RobotModel, load_robot
 from sim.camera import CameraSpec
+from sim.collision import hand_margin_m
 from sim.controller import Gains
 from sim.errors import PlacementError
 from sim.experiment import SCENARIOS, Experiment, RunResult, scenario
@@ -88,7 +89,10 @@ class ArmJob:
     ``learners`` None runs ``DEFAULT_LEARNERS``, or the learner of ``model``; ``out`` None is a fresh
     ``out/demo_arm_<time>``; ``placement`` is ``auto`` (``origin``, ``scale`` or ``size_m`` adjust
     it) or ``recorded`` (3-D demos where they were recorded, metres in the robot's base frame).
-    ``obstacles`` are ``lfd.obstacles.parse_obstacle`` texts, in task units.
+    ``obstacles`` are ``lfd.obstacles.parse_obstacle`` texts, in task units; with
+    ``arm_clearance`` (the default) the fields keep the tool point the hand's size
+    (``sim.collision.hand_margin_m``) more than each obstacle's margin away, and collision dampers in
+    the IK keep the rest of the arm clear of the obstacles, the table and itself (``sim.collision``).
     """
 
     robot: str = "panda"
@@ -120,6 +124,7 @@ class ArmJob:
     scale: float | None = None
     push: PushSpec = PushSpec()
     obstacles: tuple[str, ...] = ()
+    arm_clearance: bool = True
     goal_shift: str | None = None
     goal_path: str | None = None
     control_hz: float = 500.0
@@ -183,6 +188,11 @@ def iters_option(learner: str, iters: int) -> dict[str, int]:
     names = {f.name for f in dataclasses.fields(get_learner(learner).Config)}
     key = next((k for k in ("iters", "iterations") if k in names), None)
     return {} if key is None else {key: iters}
+
+
+def grown(obstacles: list[Obstacle], margin: float) -> list[Obstacle]:
+    """The obstacles with ``margin`` (task units) added to each one's own."""
+    return [dataclasses.replace(o, margin=o.margin + margin) if margin > 0 else o for o in obstacles]
 
 
 def placement_of(job: ArmJob, robot: RobotModel, demos: lfd.DemoSet) -> Placement | None:
@@ -328,9 +338,15 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
     # the placement's reach, on the scene with the obstacles (moving ones move), before any training
     exp = Experiment(robot, demos, placement=placement_of(job, robot, demos), plane=job.plane, size_m=job.size_m,
                      control_hz=job.control_hz, ik=job.ik, fps=job.fps, obstacles=obstacles,
-                     gains=Gains(lead_s=OBSTACLE_LEAD_S) if obstacles else Gains())
+                     gains=Gains(lead_s=OBSTACLE_LEAD_S) if obstacles else Gains(),
+                     clearance="auto" if job.arm_clearance else None)
+    avoided = grown(obstacles, hand_margin_m(robot) / exp.placement.scale if job.arm_clearance else 0.0)
+    for o, g in zip(obstacles, avoided):
+        if float(g.gamma(demos.goal)) < MIN_GOAL_GAMMA:
+            raise ConfigError(f"the demos' goal lies within the hand's size ({hand_margin_m(robot) * 1e3:.0f} mm) "
+                              f"of the {o.describe()}: move the obstacle, or give --no-arm-clearance")
     if goal_motion is not None:
-        check_goal_motion(goal_motion, exp, demos, obstacles)
+        check_goal_motion(goal_motion, exp, demos, avoided)
     if exp.placement.pose:   # a pose task's offset start is turned too: its reach, before any training
         for name in {*job.scenarios, *([job.side_by_side] if job.side_by_side else [])} & {"offset"}:
             try:
@@ -378,19 +394,22 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
                               f"but the demos {demos.name} are {'poses' if demos.has_orientation else 'positions'}")
         if f.dim != exp.placement.dim:
             raise ConfigError(f"the {name} model is {f.dim}-D but the demos {demos.name} are {demos.dim}-D")
-        if (obstacles or goal_motion is not None) and is_phased(f):
-            flag = "--obstacle" if obstacles else "--goal-shift/--goal-path"
-            raise ConfigError(f"{flag} does not apply to the {name} learner yet (its phase state)")
+        if goal_motion is not None and is_phased(f):
+            raise ConfigError(f"--goal-shift/--goal-path does not apply to the {name} learner yet (its phase state)")
         if goal_motion is not None:
             f = fields[name] = moving(f, goal_motion)
-        if obstacles:
-            fields[name] = lfd.avoid(f, obstacles)
+        if avoided:
+            fields[name] = lfd.avoid(f, avoided)
     if main_learners != planned:   # the model file named its own learner: the planned names follow it
         files = JobFiles(job, main_learners)
 
     def run(learner: str, name: str, perts: tuple[Perturbation, ...], seed: int, note: str = "") -> RunResult:
         _say(job, f"running {learner} / {name}{note}")
         result = exp.run(fields[learner], name, perts, seed=seed, progress=progress)
+        if result.metrics.get("blocked"):
+            m = result.metrics
+            print(f"blocked: {learner} / {name}{note} stopped {m['final_goal_error_m'] * 1e3:.0f} mm from its goal, "
+                  f"held {m['arm_min_clearance_m'] * 1e3:.0f} mm clear of the obstacle in its way", file=sys.stderr)
         if on_run is not None:
             on_run(result)
         return result

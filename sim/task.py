@@ -38,6 +38,7 @@ from dm_env import specs
 
 from lfd.field import goal_at, is_time_varying
 from robots import Kinematics, RobotModel, load_robot, solve_pose_ik
+from sim.collision import Clearance
 from sim.controller import FieldController, Gains
 from sim.errors import PlacementError, SimError
 from sim.perturbations import Perturbation, Schedule, compile_schedule
@@ -120,7 +121,7 @@ class FieldTrackingTask(control.Task):
                  gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
                  field: Callable[..., np.ndarray] | None = None, dynamics: str = "mujoco",
-                 timed: bool = False) -> None:
+                 timed: bool = False, clearance: Clearance | None = None) -> None:
         model = robot.mj_model if mj_model is None else mj_model
         self.robot, self.placement, self.control_dt = robot, placement, float(control_dt)
         self.n_steps = int(round(duration_s / control_dt))
@@ -162,7 +163,7 @@ class FieldTrackingTask(control.Task):
         self.q_start = q0
         self.controller = FieldController(robot, placement, control_dt, ik=ik,
                                           rotation_ref=rotation_ref, gains=gains, feedforward=feedforward,
-                                          mj_model=model, dynamics=dynamics)
+                                          mj_model=model, dynamics=dynamics, clearance=clearance)
         self.step_index = 0
         self.clipped_actions = 0
         self._qadr, self._dadr = robot.mj_qpos_adr, robot.mj_dof_adr
@@ -437,7 +438,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                      actuation: str | None = None, perturbations: Sequence[Perturbation] = (),
                      rotation_ref: np.ndarray | None = None, gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None,
-                     dynamics: str = "mujoco") -> control.Environment:
+                     dynamics: str = "mujoco", clearance: Clearance | None = None) -> control.Environment:
     """A dm_control Environment of ``robot`` following task velocities (see the module docstring).
 
     One call from names::
@@ -468,6 +469,7 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
     physics : an ``ArmPhysics.from_robot(robot)`` to reuse one compiled model across environments.
     dynamics : computed torque from MuJoCo's own M(q) and bias forces (``mujoco``, the default) or
         Pinocchio's RNEA (``pinocchio``); see ``sim.controller``.
+    clearance : whole-arm collision dampers in the IK (``sim.collision``; default None: none).
     Others as ``FieldTrackingTask`` and ``sim.controller.FieldController``.
     """
     robot = _robot(robot, actuation)
@@ -487,6 +489,6 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                              start_radius=start_radius, seed=seed,
                              field=None if learner_field is None else learner_field.single_point_evaluator(),
                              timed=learner_field is not None and is_time_varying(learner_field),
-                             dynamics=dynamics)
+                             dynamics=dynamics, clearance=clearance)
     return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
                                legacy_step=False)

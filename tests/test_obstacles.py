@@ -143,11 +143,15 @@ def test_velocity_never_points_into_the_surface_and_is_unchanged_far_away(spiral
     surface = obs.surface_points(100)
     v = f(surface)
     n = obs.normal(surface)
-    normal_speed, nominal = np.sum(v * n, axis=1), np.sum(spiral_field_2d(surface) * n, axis=1)
+    # on the surface Eq. (O2) has turned f fully toward the goal: b = |f| (g - x) / |g - x|
+    normal_speed, nominal = np.sum(v * n, axis=1), np.sum((spiral_field_2d.goal - surface) * n, axis=1)
     tol = 1e-9 * np.max(np.linalg.norm(v, axis=1))
     inward = nominal < 0
-    assert inward.sum() > 10 and np.max(np.abs(normal_speed[inward])) < tol   # tangent where f points in
-    assert np.all(normal_speed[~inward] >= -tol)                             # outward where f points out
+    assert inward.sum() > 10 and np.max(np.abs(normal_speed[inward])) < tol   # tangent where b points in
+    assert np.all(normal_speed[~inward] >= -tol)                             # outward where b points out
+    plain = avoid(spiral_field_2d, [obs], convergence=False)(surface)       # [1]'s modulation: f itself
+    inward_f = np.sum(spiral_field_2d(surface) * n, axis=1) < 0
+    assert inward_f.sum() > 10 and np.max(np.abs(np.sum(plain * n, axis=1)[inward_f])) < tol
     far = np.array([[30.0, -40.0], [-50.0, 20.0]])
     np.testing.assert_allclose(f(far), spiral_field_2d(far), rtol=0.02)
 
@@ -354,3 +358,116 @@ def test_lfd_plot_draws_obstacles_and_rejects_bad_ones(tmp_path, capsys) -> None
         err = capsys.readouterr().err
         assert msg in err and err.count("\n") == 1
     assert not (tmp_path / "q.png").exists()
+
+
+# ---------------------------------------------------------------- convergence kept, Eqs. (O1)-(O3)
+WINDING = np.array([[-0.3, 3.0], [-3.0, -0.3]])   # a focus that turns 1.6 times per e-fold
+
+
+@pytest.mark.parametrize("centre, radius", [((0.12, 0.0), 0.08), ((0.25, 0.1), 0.2)])
+def test_a_winding_field_stalls_on_the_plain_modulation_and_reaches_its_goal_with_eqs_o2_o3(centre, radius) -> None:
+    """An obstacle beside the goal of a fast-winding focus: [KB]'s modulation leaves every start
+    stuck on the obstacle; Eqs. (O1)-(O3) bring every start within 1e-3 of the goal, none enters."""
+    f = linear_field(WINDING, np.zeros(2))
+    ob = Sphere(centre, radius)
+    ang = np.linspace(0.0, 2.0 * np.pi, 24, endpoint=False)
+    starts = 1.2 * np.c_[np.cos(ang), np.sin(ang)]
+    t = np.linspace(0.0, 30.0, 1501)
+    plain = avoid(f, [ob], convergence=False).rollout(starts, t)
+    assert np.all(np.linalg.norm(plain[:, -1], axis=1) > 1e-2)                # stalled on the surface
+    kept = avoid(f, [ob])
+    y = kept.rollout(starts, t)
+    assert float(kept.gamma(y).min()) >= 1.0
+    assert np.all(np.linalg.norm(y[:, -1], axis=1) < 1e-3)
+
+
+def test_steering_leaves_the_field_alone_far_from_obstacles_and_fades_the_modulation_at_the_goal() -> None:
+    """omega = 0 beyond half an obstacle's size (Eq. (O2)), and within r_k of the goal M = I (Eq. (O3)),
+    so there x_dot = b; the goal stays an equilibrium."""
+    f = linear_field(WINDING, np.zeros(2))
+    ob = Sphere([0.12, 0.0], 0.08)
+    a = avoid(f, [ob])
+    plain = avoid(f, [ob], convergence=False)
+    far = np.array([[-0.5, 0.3], [0.0, -0.6]])                                  # Gamma > 1.5
+    assert np.all(ob.gamma(far) > 1.5)
+    np.testing.assert_allclose(a(far), plain(far), rtol=1e-12)
+    # eta = s(|x - g| / r), r = 0.5 l (Gamma(g) - 1) = 0.02: next to the goal x_dot -> b
+    near = np.array([[-1e-4, 0.0], [0.0, 5e-5], [3e-5, -4e-5]])
+    gam = ob.gamma(near)
+    u = np.clip((1.5 - gam) / 0.5, 0, 1)
+    omega = u * u * (3 - 2 * u)
+    fx = f(near)
+    b = (1 - omega)[:, None] * fx + (omega * np.linalg.norm(fx, axis=1))[:, None] * (
+        -near / np.linalg.norm(near, axis=1)[:, None])
+    np.testing.assert_allclose(a(near), b, rtol=1e-3)
+    assert not np.allclose(plain(near), b, rtol=1e-2)                           # the plain modulation is not faded
+    np.testing.assert_allclose(a(np.zeros(2)), 0.0, atol=1e-15)
+
+
+def test_a_goal_contracting_field_gets_no_equilibrium_off_the_surfaces() -> None:
+    """A field with a quadratic Lyapunov function never points straight away from its goal, so
+    b != 0 and M b != 0 at every point outside the obstacle (docs/equations.md)."""
+    f = linear_field(WINDING, np.zeros(2))
+    ob = Sphere([0.12, 0.0], 0.08)
+    a = avoid(f, [ob])
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-0.4, 0.4, (20000, 2))
+    x = x[(ob.gamma(x) > 1.0 + 1e-6) & (np.linalg.norm(x, axis=1) > 1e-3)]
+    speed = np.linalg.norm(a(x), axis=1) / np.linalg.norm(x, axis=1)
+    assert speed.min() > 1e-3
+
+
+def test_rollout_never_ends_a_step_inside_and_push_out_reaches_the_surface() -> None:
+    f = linear_field(WINDING, np.zeros(2))
+    a = avoid(f, [Sphere([0.12, 0.0], 0.08), Box([-0.2, 0.1], [0.05, 0.03])])
+    inside = np.array([[0.12, 0.01], [0.1, -0.02], [-0.2, 0.1]])
+    out = a.push_out(inside)
+    assert np.all(a.gamma(out) >= 1.0) and np.all(a.gamma(out) < 1.0 + 1e-6)
+    coarse = a.rollout(np.array([[0.6, 0.0], [-0.5, 0.4]]), np.linspace(0.0, 10.0, 41))   # 0.25 s steps
+    assert float(a.gamma(coarse).min()) >= 1.0
+
+
+def test_tracking_field_avoids_obstacles_and_its_phase_keeps_going() -> None:
+    """The tracking learner with an obstacle on its reference: a PhasedAvoidingField, the same
+    fast path as the batch path, no entry, the phase reaches 1 and every start reaches the goal."""
+    from lfd.obstacles import PhasedAvoidingField
+
+    demos = lfd.load_demos("spiral")
+    field = lfd.train("tracking", demos, seed=0)
+    ob = on_path_obstacle(demos, 0.5, 0.08)
+    a = avoid(field, [ob])
+    assert isinstance(a, PhasedAvoidingField) and a.kind is field.kind
+    starts = demos.x[:, 0]
+    t = np.linspace(0.0, 3.0 * float(demos.t[0, -1]), 601)
+    x, s = a.rollout_with_phase(starts, t)
+    assert float(a.gamma(x).min()) >= 1.0
+    assert s[:, -1].min() > 0.99
+    assert np.all(np.linalg.norm(x[:, -1] - field.goal, axis=1) < 1e-3 * demos.extent)
+    fn = a.phase_point_fn(starts[0])
+    v, sdot = fn(starts[0], 0.0)
+    v0, sdot0 = field.phase_point_fn(starts[0])(starts[0], 0.0)
+    assert sdot == sdot0 and np.all(np.isfinite(v))
+    with pytest.raises(ConfigError, match="static obstacles"):
+        avoid(field, [Sphere([0.0, 0.0], 0.1, velocity=[0.1, 0.0])])
+
+
+@pytest.mark.parametrize("name", ["spiral", "spiral3d", "lasa:Sshape"])
+def test_random_scenes_are_seeded_and_keep_goal_and_starts_clear(name: str) -> None:
+    from lfd.obstacles import random_scene
+    from lfd.obstacles.groups import _group
+
+    demos = lfd.load_demos(name)
+    for seed in range(12):
+        scene = random_scene(demos, seed)
+        again = random_scene(demos, seed)
+        assert [o.describe() for o in scene] == [o.describe() for o in again]
+        assert 1 <= len(scene) <= 3 and all(o.dim == demos.dim for o in scene)
+        for u in _group(scene):
+            assert float(u.geometry(demos.goal[None], 0.0)[0][0]) >= 1.01
+            assert float(u.geometry(demos.x[:, 0], 0.0)[0].min()) >= 1.05
+        sizes = [o.size - o.margin for o in scene]
+        assert max(sizes) <= 0.1 * np.sqrt(demos.dim) * 1.4 * demos.extent
+    grown = random_scene(demos, 0, extra_margin=0.05 * demos.extent)
+    assert all(float(o.gamma(demos.goal)) >= 1.0 for o in grown)
+    with pytest.raises(ConfigError, match="1 to 16"):
+        random_scene(demos, 0, count=0)

@@ -228,8 +228,9 @@ def test_demo_arm_goal_shift_flag(tmp_path, demo_arm_sink, capsys) -> None:
 
 def test_moving_obstacle_moves_in_the_scene_and_is_avoided_on_the_panda() -> None:
     """A sphere (with a hand clearance) sweeps across the Panda's path at 1.2 units/s: the scene moves
-    it (a mocap body), the avoiding field never lets the arm touch it, the bare field runs into it,
-    and a replay that froze the sphere at t = 0 would have counted contacts that never happened."""
+    it (a mocap body), the avoiding field never lets the arm touch it, the bare field runs into it
+    unless the whole-arm dampers hold the arm back, and a replay that froze the sphere at t = 0
+    would count other contacts than those that happened."""
     import sys
     from pathlib import Path
 
@@ -243,16 +244,20 @@ def test_moving_obstacle_moves_in_the_scene_and_is_avoided_on_the_panda() -> Non
     field = sink_field(demos)
     crossing = field.rollout(demos.x[0, 0], np.linspace(0.0, 0.5, 51))[-1]   # on the path at t = 0.5 s
     mover = Obstacle.sphere(crossing - np.array([0.6, 0.0]), 0.12, velocity=[1.2, 0.0], margin=0.3)
-    exp = sim.Experiment(load_robot("panda"), demos, obstacles=[mover])
+    exp = sim.Experiment(load_robot("panda"), demos, obstacles=[mover], clearance=None)   # the tool point only
     safe = exp.run(avoid(field, [mover]), "none").trace
     bare = exp.run(field, "none").trace
+    guarded = sim.Experiment(load_robot("panda"), demos, obstacles=[mover])   # whole-arm dampers, the default
+    held = guarded.run(field, "none").trace                                   # stop the bare field's arm short of it
+    assert obstacle_contacts(guarded.robot, held.q, held.t, held.mocap_pos).contacts == 0
     assert safe.mocap_pos is not None and safe.mocap_pos.shape == (len(safe.t), 1, 3)
     shift = exp.placement.scale * exp.placement.axes @ np.array([1.2, 0.0])             # m per s
     np.testing.assert_allclose(safe.mocap_pos[:, 0], safe.t[:, None] * shift[None], atol=1e-12)
     assert safe.frame_mocap is not None and safe.frame_mocap.shape == (len(safe.frame_t), 1, 3)
     moving = obstacle_contacts(exp.robot, safe.q, safe.t, safe.mocap_pos)
     assert moving.contacts == 0 and moving.min_clearance_m > 0.002
-    assert obstacle_contacts(exp.robot, safe.q, safe.t).contacts > 0          # the frozen sphere is in the way
-    assert obstacle_contacts(exp.robot, bare.q, bare.t, bare.mocap_pos).contacts > 0
+    hits = obstacle_contacts(exp.robot, bare.q, bare.t, bare.mocap_pos).contacts
+    assert hits > 0
+    assert obstacle_contacts(exp.robot, bare.q, bare.t).contacts != hits     # a frozen sphere counts other contacts
     with pytest.raises(ConfigError, match="mocap positions"):
         obstacle_contacts(exp.robot, safe.q, safe.t, safe.mocap_pos[:-1])

@@ -1,0 +1,89 @@
+#!/usr/bin/env python
+"""What whole-arm clearance costs per control step on the Panda. Prints, asserts nothing.
+
+The user's 3-demo spiral with 3 obstacles on and beside its path (the user's sphere, a box and a
+sphere), the contraction field avoiding them (``lfd.avoid``, with the hand margin). Three
+variants of the same run, interleaved ``--repeats`` times:
+
+* ``bare``: no obstacles, the plain field (today's loop);
+* ``tool point``: the obstacles in the scene and the field, no dampers (``clearance=None``);
+* ``whole arm``: the default, the dampers of ``sim.collision`` and the QP of ``robots.ik.constrained``.
+
+Per variant: the median control step (wall, the loop's own timer), its 95th percentile, the share
+of steps with a pair within the dampers' reach and with a damper at its bound, and the real-time
+factor. The extra cost of whole-arm clearance is ``whole arm`` - ``tool point``, median and over
+the steps with a pair within reach. Wall clock: note the load average printed with it.
+
+Usage: python scripts/speed_arm_clearance.py [--repeats 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+import lfd  # noqa: E402
+import sim  # noqa: E402
+from lfd.cache import cached_field  # noqa: E402
+from lfd.obstacles import Box, Sphere  # noqa: E402
+from robots import load_robot  # noqa: E402
+from sim.collision import hand_margin_m  # noqa: E402
+from sim.controller import Gains  # noqa: E402
+from sim.pipeline import OBSTACLE_LEAD_S, grown  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    a = ap.parse_args()
+    demos = lfd.spiral(n_demos=3, radius=0.13)
+    x = demos.x[0]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(x, axis=0), axis=1))])
+    at = lambda f: x[np.searchsorted(s, f * s[-1])]   # noqa: E731
+    ext = demos.extent
+    obstacles = [Sphere(at(0.4), 0.06 * ext), Box(at(0.7) + [0.0, 0.05 * ext], [0.04 * ext, 0.03 * ext]),
+                 Sphere(at(0.2) - [0.06 * ext, 0.0], 0.04 * ext)]
+    robot = load_robot("panda")
+    field, _, _ = cached_field("contraction", demos, 0, {}, verbose=False)
+    bare = sim.Experiment(robot, demos, clearance=None)
+    scale = bare.placement.scale
+    avoiding = lfd.avoid(field, grown(obstacles, hand_margin_m(robot) / scale))
+    gains = Gains(lead_s=OBSTACLE_LEAD_S)
+    tool = sim.Experiment(robot, demos, obstacles=obstacles, gains=gains, clearance=None)
+    arm = sim.Experiment(robot, demos, obstacles=obstacles, gains=gains)
+    variants = {"bare": (bare, field), "tool point": (tool, avoiding), "whole arm": (arm, avoiding)}
+    steps: dict[str, list[np.ndarray]] = {k: [] for k in variants}
+    rtf: dict[str, list[float]] = {k: [] for k in variants}
+    near: list[np.ndarray] = []
+    active: list[np.ndarray] = []
+    for exp, f in variants.values():
+        exp.simulate(f)   # warm up: compile, caches
+    for _ in range(a.repeats):
+        for name, (exp, f) in variants.items():
+            ro = exp.simulate(f)
+            steps[name].append(ro.step_time_s)
+            rtf[name].append(ro.realtime_factor)
+            if name == "whole arm":
+                near.append(np.isfinite(ro.arm_clearance_m[:-1]))
+                active.append(ro.guard_active[:-1])
+    print(f"load average {os.getloadavg()[0]:.2f}; {a.repeats} repeats of {len(steps['bare'][0])} steps")
+    print(f"{'variant':12s} {'median us':>10s} {'p95 us':>8s} {'RTF':>6s}")
+    for name in variants:
+        st = np.concatenate(steps[name]) * 1e6
+        print(f"{name:12s} {np.median(st):10.1f} {np.percentile(st, 95):8.1f} {np.median(rtf[name]):6.0f}")
+    st_tool, st_arm = np.concatenate(steps["tool point"]) * 1e6, np.concatenate(steps["whole arm"]) * 1e6
+    nr, ac = np.concatenate(near), np.concatenate(active)
+    print(f"steps with a pair within reach: {100 * nr.mean():.1f} %; with a damper at its bound: {100 * ac.mean():.1f} %")
+    print(f"extra per step (whole arm - tool point): median {np.median(st_arm) - np.median(st_tool):.1f} us, "
+          f"mean {st_arm.mean() - st_tool.mean():.1f} us; on steps within reach: "
+          f"{np.median(st_arm[nr]) - np.median(st_tool):.1f} us (median), on steps with a bound damper: "
+          f"{np.median(st_arm[ac]) - np.median(st_tool) if ac.any() else float('nan'):.1f} us")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,270 @@
+"""Whole-arm clearance: velocity dampers between every collision geom of the arm and the scene.
+
+The field keeps the tool point out of the obstacles (``lfd.obstacles``); this module keeps the
+rest of the arm out of them, and out of the table and of itself, through the IK. For each pair
+(a geom of the arm, a geom it must not touch) MuJoCo gives the distance d and the nearest points
+p_1 (arm) and p_2 (other), n = (p_2 - p_1) / |p_2 - p_1|:
+
+``mj_geomDistance`` on every pair that passes a broad phase: the pair's bounding spheres (each
+geom's axis-aligned box, ``geom_aabb``) lie within d_i (the table, a slab, is bounded by its top
+face). Within the
+influence distance d_i the pair adds one velocity damper (Faverjon and Tournassoud 1987) to the IK
+QP (``robots.ik.constrained``):
+
+    d_dot = -n^T (J_1 - J_2) qdot >= -k (d - d_s)   <=>   n^T (J_1 - J_2) qdot <= k (d - d_s)
+
+with J_1, J_2 the translational Jacobians at p_1 and p_2 (J_2 = 0 for the scene), d_s the
+safety distance and k the damper rate: in continuous time d decays toward d_s at most at rate
+k and never crosses it. A pair beyond d_i adds nothing, so far from everything the IK is the
+plain one (the compiled DLS fast path).
+
+The pairs: every arm geom against every obstacle (geoms named ``obstacle_<i>``, ``sim.obstacles``)
+and the table top, except the base links (within ``SELF_SKIP`` links of the world) against the
+table they stand on; and arm geoms against each other on bodies more than ``SELF_SKIP`` links
+apart along the chain, leaving out pairs within d_i at the home posture (neighbours by design).
+
+References
+----------
+B. Faverjon and P. Tournassoud, "A local based approach for path planning of manipulators with a
+high number of degrees of freedom", IEEE ICRA 1987, 1152-1159.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from robots.model import RobotModel
+from sim.errors import SimError
+from sim.obstacles import PREFIX, robot_geom_ids
+
+__all__ = ["Clearance", "ArmClearance", "TABLE_GEOM", "SELF_SKIP", "TOOL_DEPTH_M", "hand_margin_m"]
+
+#: the table top's geom name (``robots.scene.add_table``)
+TABLE_GEOM = "table_top"
+#: ``hand_margin_m`` counts the tool's geometry within this distance of the tool point along its axis, m
+TOOL_DEPTH_M = 0.03
+#: arm bodies within this many links of each other along the chain are not checked against each other
+SELF_SKIP = 3
+
+
+@dataclass(frozen=True)
+class Clearance:
+    """safety_m: d_s, the distance every damper keeps, m; influence_m: d_i, m; rate: k, 1/s;
+    self_collision: also damp arm-arm pairs."""
+
+    safety_m: float = 0.01
+    influence_m: float = 0.04
+    rate: float = 20.0
+    self_collision: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("safety_m", "influence_m", "rate"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise SimError(f"clearance {name} must be a finite number >= 0, got {v!r}")
+        if not self.influence_m > self.safety_m:
+            raise SimError(f"clearance influence_m ({self.influence_m}) must exceed safety_m ({self.safety_m})")
+        if not 0 < self.rate <= 1000:
+            raise SimError(f"clearance rate must be in (0, 1000] 1/s, got {self.rate}")
+
+
+def _scene_geom(name: str) -> bool:
+    return name.startswith(PREFIX) or name == TABLE_GEOM
+
+
+def _geom_points(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> np.ndarray:
+    """Points, shape (P, 3), world, that bound a geom: a mesh's vertices, a box's corners, a
+    sphere's, capsule's or cylinder's bounding-box corners."""
+    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+        mid = int(model.geom_dataid[g])
+        local = model.mesh_vert[model.mesh_vertadr[mid]:model.mesh_vertadr[mid] + model.mesh_vertnum[mid]]
+    else:
+        c, h = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
+        local = c + h * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+    return data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T
+
+
+def hand_margin_m(robot: RobotModel) -> float:
+    """The hand's size around the tool point, m: the largest distance from the tool's z axis of
+    the collision geometry fixed to the last moving link (the hand and fingers, not that link
+    itself) that lies within ``TOOL_DEPTH_M`` of the tool point along that axis, at the home
+    posture.
+
+    A field that keeps the tool point this far from an obstacle keeps that part of the hand clear
+    of it too; the rest of the arm is kept clear by the dampers (``ArmClearance``). 0 for a tool
+    without collision geometry there."""
+    model = robot.mj_model
+    data = mujoco.MjData(model)
+    data.qpos[robot.mj_qpos_adr] = robot.q_home
+    mujoco.mj_kinematics(model, data)
+    site = int(model.site(robot.mj_ee_site).id)
+    link = int(model.site_bodyid[site])
+    while link > 0 and model.body_jntnum[link] == 0:    # the last moving link
+        link = int(model.body_parentid[link])
+    p, rot = data.site_xpos[site], data.site_xmat[site].reshape(3, 3)
+
+    def carried(b: int) -> bool:   # fixed below the last moving link, not that link itself
+        while b > 0 and b != link:
+            if model.body_jntnum[b] > 0:
+                return False
+            b = int(model.body_parentid[b])
+        return b == link and b > 0
+    best = 0.0
+    for g in range(model.ngeom):
+        b = int(model.geom_bodyid[g])
+        if not (model.geom_contype[g] or model.geom_conaffinity[g]) or b == link or not carried(b):
+            continue
+        local = (_geom_points(model, data, g) - p) @ rot       # tool frame
+        near = np.abs(local[:, 2]) <= TOOL_DEPTH_M
+        if near.any():
+            best = max(best, float(np.max(np.linalg.norm(local[near, :2], axis=1))))
+    return best
+
+
+def _label(model: mujoco.MjModel, g: int) -> str:
+    """A geom's name, or its body's name and index."""
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
+    if name:
+        return name
+    return f"{mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.geom_bodyid[g])) or 'body'}[{g}]"
+
+
+def _chain_distance(model: mujoco.MjModel, a: int, b: int) -> int:
+    """Links between bodies a and b in the kinematic tree."""
+    def path(x: int) -> list[int]:
+        out = [x]
+        while x != 0:
+            x = int(model.body_parentid[x])
+            out.append(x)
+        return out
+    pa, pb = path(a), path(b)
+    common = next(x for x in pa if x in set(pb))
+    return pa.index(common) + pb.index(common)
+
+
+class ArmClearance:
+    """The dampers of one scene (module docstring): ``rows(data, dofs)`` at the current state.
+
+    Parameters
+    ----------
+    model : mujoco.MjModel
+        The scene (the robot with its obstacles and table).
+    robot : RobotModel
+    spec : Clearance
+    """
+
+    def __init__(self, model: mujoco.MjModel, robot: RobotModel, spec: Clearance = Clearance()) -> None:
+        self.model, self.spec = model, spec
+        self.dofs = np.asarray(robot.mj_dof_adr, dtype=np.intp)
+        arm = robot_geom_ids(model)
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(model.ngeom)]
+        scene = [g for g in range(model.ngeom) if _scene_geom(names[g])]
+        self.scene_geoms = np.array(scene, dtype=int)
+        pairs: list[tuple[int, int, bool]] = []   # (arm geom, other geom, the other is on the arm)
+        for o in scene:
+            table = names[o] == TABLE_GEOM
+            for g in arm:
+                if table and _chain_distance(model, int(model.geom_bodyid[g]), 0) <= SELF_SKIP:
+                    continue                          # the base links stand on the table
+                pairs.append((int(g), o, False))
+        if spec.self_collision:
+            data = mujoco.MjData(model)
+            data.qpos[robot.mj_qpos_adr] = robot.q_home
+            mujoco.mj_kinematics(model, data)
+            fromto = np.zeros(6)
+            for i, g in enumerate(arm):
+                for h in arm[i + 1:]:
+                    if (_chain_distance(model, int(model.geom_bodyid[g]), int(model.geom_bodyid[h])) > SELF_SKIP
+                            and mujoco.mj_geomDistance(model, data, int(g), int(h), spec.influence_m, fromto)
+                            >= spec.influence_m):
+                        pairs.append((int(g), int(h), True))
+        self.pairs = pairs
+        self.names = [_label(model, g) for g in range(model.ngeom)]
+        geoms = sorted({g for p in pairs for g in p[:2]})
+        self._geoms = np.array(geoms, dtype=np.int64)
+        slot = {g: i for i, g in enumerate(geoms)}
+        self._a = np.array([slot[p[0]] for p in pairs], dtype=np.int64)
+        self._b = np.array([slot[p[1]] for p in pairs], dtype=np.int64)
+        self._slab = np.array([model.geom_size[p[1], 2] if names[p[1]] == TABLE_GEOM else np.nan for p in pairs])
+        aabb = model.geom_aabb[self._geoms] if geoms else np.zeros((0, 6))
+        self._centre = np.ascontiguousarray(aabb[:, :3])
+        self._radius = np.ascontiguousarray(np.linalg.norm(aabb[:, 3:], axis=1))
+        self._idx = np.zeros(len(pairs), dtype=np.int64)
+        self._body = np.ascontiguousarray(model.geom_bodyid, dtype=np.int64)
+        self._column = np.full(model.nv, -1, dtype=np.int64)
+        self._column[self.dofs] = np.arange(len(self.dofs))
+        self._tree = (np.ascontiguousarray(model.body_rootid, dtype=np.int64),
+                      np.ascontiguousarray(model.body_dofnum, dtype=np.int64),
+                      np.ascontiguousarray(model.body_dofadr, dtype=np.int64),
+                      np.ascontiguousarray(model.body_parentid, dtype=np.int64),
+                      np.ascontiguousarray(model.dof_parentid, dtype=np.int64))
+        self._fromto = np.zeros(6)
+        self._kernels = _kernels()
+        self._g1 = np.array([p[0] for p in pairs], dtype=np.int64)
+        self._g2 = np.array([p[1] for p in pairs], dtype=np.int64)
+        self._mutual = np.array([p[2] for p in pairs], dtype=np.bool_)
+        self._A = np.empty((len(pairs), len(self.dofs)))
+        self._d = np.empty(len(pairs))
+        self._which = np.zeros(len(pairs), dtype=np.int64)
+        self._no_rows = (np.zeros((0, len(self.dofs))), np.zeros(0))
+        self.min_distance = math.inf
+        self._closest: tuple[int, int] | None = None
+
+    @property
+    def n_pairs(self) -> int:
+        """The number of pairs checked."""
+        return len(self.pairs)
+
+    def candidates(self, data: mujoco.MjData) -> np.ndarray:
+        """Indices of the pairs whose bounding spheres lie within d_i, shape (c,)."""
+        if not self.pairs:
+            return self._idx[:0]
+        count = self._kernels[0](data.geom_xpos, data.geom_xmat, self._geoms, self._centre, self._radius,
+                                 self._a, self._b, self._slab, self.spec.influence_m, self._idx)
+        return self._idx[:count]
+
+    @property
+    def closest(self) -> str:
+        """The geom names of the pair at ``min_distance`` in the last ``rows`` call ("" if none)."""
+        if self._closest is None:
+            return ""
+        return f"{self.names[self._closest[0]]} / {self.names[self._closest[1]]}"
+
+    def rows(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """(A (k, n), b (k,)): one damper per pair within d_i at the state of ``data``, whose
+        kinematics (``mj_step1``, or ``mj_forward``) are current. Sets ``min_distance`` (the
+        smallest d met, inf if none within d_i) and ``closest`` (that pair's geom names)."""
+        spec = self.spec
+        cand = self.candidates(data)
+        if not cand.size:
+            self.min_distance, self._closest = math.inf, None
+            return self._no_rows
+        count = self._kernels[2](self.model._address, data._address, cand, cand.size, self._g1, self._g2,
+                                 self._mutual, spec.influence_m, data.geom_xpos, self._body, data.cdof,
+                                 data.subtree_com, *self._tree, self._column, self._fromto, self._A, self._d,
+                                 self._which)
+        if not count:
+            self.min_distance, self._closest = math.inf, None
+            return self._no_rows
+        dd = self._d[:count]
+        j = int(np.argmin(dd))
+        self.min_distance = float(dd[j])
+        self._closest = self.pairs[int(self._which[j])][:2]
+        return self._A[:count].copy(), spec.rate * (dd - spec.safety_m)
+
+
+_KERNELS: tuple | None = None
+
+
+def _kernels() -> tuple:
+    """(broadphase, damper_rows, pair_rows) of ``sim._collision_kernel`` (numba is imported on first use)."""
+    global _KERNELS
+    if _KERNELS is None:
+        from sim._collision_kernel import broadphase, damper_rows, pair_rows
+
+        _KERNELS = (broadphase, damper_rows, pair_rows)
+    return _KERNELS

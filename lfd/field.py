@@ -12,7 +12,8 @@ never the field's attributes:
 - ``FieldKind.TIME_VARYING``: f(x, t), called with the time [s] as its second argument (a moving
   goal, ``lfd.goal``; an obstacle-avoiding field, ``lfd.obstacles``);
 - ``FieldKind.PHASED``: (dx/dt, ds/dt) = f(x, s) with a phase s in [0, 1] carried beside x (the
-  tracking learner, ``lfd.learners.tracking``; ``PhasedField``).
+  tracking learner, ``lfd.learners.tracking``, and obstacles around it,
+  ``lfd.obstacles.PhasedAvoidingField``; ``PhasedField``).
 
 ``StateSpace.POSITION`` is R^d, positions only. ``StateSpace.POSE`` is position and orientation,
 R^3 x SO(3), learned in the log chart at the goal orientation (``lfd.pose``, Eqs. (P1)-(P4) of
@@ -403,8 +404,9 @@ def goal_at(field: Field, t: float) -> np.ndarray:
 
 class FieldWrapper:
     """Base of the fields that wrap another one (``lfd.goal.MovingGoalField``,
-    ``lfd.obstacles.AvoidingField``): ``FieldKind.TIME_VARYING`` on the wrapped ``field``'s space,
-    with its dimension, learner name and training record."""
+    ``lfd.obstacles.AvoidingField``): ``FieldKind.TIME_VARYING`` (a subclass may declare another
+    kind: ``lfd.obstacles.PhasedAvoidingField``) on the wrapped ``field``'s space, with its
+    dimension, learner name and training record."""
 
     kind: ClassVar[FieldKind] = FieldKind.TIME_VARYING
     field: Field

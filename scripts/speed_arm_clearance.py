@@ -78,7 +78,8 @@ def main() -> None:
         print(f"{name:12s} {np.median(st):10.1f} {np.percentile(st, 95):8.1f} {np.median(rtf[name]):6.0f}")
     st_tool, st_arm = np.concatenate(steps["tool point"]) * 1e6, np.concatenate(steps["whole arm"]) * 1e6
     nr, ac = np.concatenate(near), np.concatenate(active)
-    print(f"steps with a pair within reach: {100 * nr.mean():.1f} %; with a damper at its bound: {100 * ac.mean():.1f} %")
+    print(f"steps with a pair within reach: {100 * nr.mean():.1f} %; "
+          f"with a damper at its bound: {100 * ac.mean():.1f} %")
     print(f"extra per step (whole arm - tool point): median {np.median(st_arm) - np.median(st_tool):.1f} us, "
           f"mean {st_arm.mean() - st_tool.mean():.1f} us; on steps within reach: "
           f"{np.median(st_arm[nr]) - np.median(st_tool):.1f} us (median), on steps with a bound damper: "

@@ -25,7 +25,8 @@ As a dm_env environment (for RL; gymnasium through ``shimmy.DmControlCompatibili
 The top level is what a user of the arm needs (``__all__``); the lower layer lives in its modules:
 ``sim.task`` (``ArmPhysics``, ``FieldTrackingTask``), ``sim.loop`` (the closed loop),
 ``sim.controller`` (twist -> IK -> actuators), ``sim.render`` (videos), ``sim.metrics`` (scores),
-``sim.obstacles`` (obstacles as MuJoCo geoms, contacts), ``sim.errors`` (``SimError`` and its kinds).
+``sim.obstacles`` (obstacles as MuJoCo geoms, contacts), ``sim.collision`` (whole-arm collision
+dampers in the IK, the hand margin), ``sim.errors`` (``SimError`` and its kinds).
 """
 
 from sim.gl import select_backend

@@ -1,6 +1,7 @@
-"""Compiled hot paths of ``sim.collision``: the broad phase over all pairs and a damper's row
-n^T J(p) of MuJoCo's translational Jacobian at a point (the sum of ``mj_jac``'s columns, written
-over ``cdof`` as MuJoCo's ``mj_jac`` does).
+"""Compiled hot paths of ``sim.collision``: the broad phase over all pairs, and the rows of
+Eq. (A1): MuJoCo's ``mj_geomDistance`` called from numba through ctypes for each candidate pair,
+and n^T J(p) of MuJoCo's translational Jacobian at a point (written over ``cdof`` as MuJoCo's
+``mj_jac`` does).
 
 Imported lazily by ``sim.collision``; ``cache=True`` keeps the machine code beside this file.
 """
@@ -72,23 +73,6 @@ def add_row(cdof: np.ndarray, subtree_com: np.ndarray, body_rootid: np.ndarray, 
         j = dof_parentid[j]
 
 
-@numba.njit(cache=True, fastmath=False, nogil=True)
-def damper_rows(cdof: np.ndarray, subtree_com: np.ndarray, body_rootid: np.ndarray, body_dofnum: np.ndarray,
-                body_dofadr: np.ndarray, body_parentid: np.ndarray, dof_parentid: np.ndarray, body1: np.ndarray,
-                p1: np.ndarray, body2: np.ndarray, p2: np.ndarray, n: np.ndarray, column: np.ndarray,
-                out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """out[i] = n_i^T (J(p1_i) - J(p2_i)) over the arm's columns, for k pairs: body1, body2 (k,)
-    (body2 < 0: the scene, J = 0), points p1, p2 (k, 3), unit normals n (k, 3), out (k, n_arm)."""
-    for i in range(body1.shape[0]):
-        for c in range(out.shape[1]):
-            out[i, c] = 0.0
-        add_row(cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid,
-                body1[i], p1[i], n[i], 1.0, column, out[i])
-        if body2[i] >= 0:
-            add_row(cdof, subtree_com, body_rootid, body_dofnum, body_dofadr, body_parentid, dof_parentid,
-                    body2[i], p2[i], n[i], -1.0, column, out[i])
-
-
 def _geom_distance() -> Any:
     """MuJoCo's ``mj_geomDistance`` from its shared library, as a ctypes function numba can call.
 
@@ -103,7 +87,9 @@ def _geom_distance() -> Any:
     libs = sorted(glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco.so*"))
                   + glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco*.dylib")))
     if not libs or ctypes.sizeof(ctypes.c_void_p) != 8:
-        raise OSError("no 64-bit MuJoCo shared library beside the mujoco package")
+        from sim.errors import SimError
+
+        raise SimError("whole-arm clearance needs the 64-bit MuJoCo shared library beside the mujoco package")
     fn = ctypes.CDLL(libs[0]).mj_geomDistance
     fn.argtypes = (ctypes.c_size_t, ctypes.c_size_t, ctypes.c_int, ctypes.c_int, ctypes.c_double, ctypes.c_size_t)
     fn.restype = ctypes.c_double

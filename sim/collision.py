@@ -2,26 +2,26 @@
 
 The field keeps the tool point out of the obstacles (``lfd.obstacles``); this module keeps the
 rest of the arm out of them, and out of the table and of itself, through the IK. For each pair
-(a geom of the arm, a geom it must not touch) MuJoCo gives the distance d and the nearest points
-p_1 (arm) and p_2 (other), n = (p_2 - p_1) / |p_2 - p_1|:
-
-``mj_geomDistance`` on every pair that passes a broad phase: the pair's bounding spheres (each
-geom's axis-aligned box, ``geom_aabb``) lie within d_i (the table, a slab, is bounded by its top
-face). Within the
-influence distance d_i the pair adds one velocity damper (Faverjon and Tournassoud 1987) to the IK
-QP (``robots.ik.constrained``):
+(a geom of the arm, a geom it must not touch) that passes a broad phase (the pair's bounding
+spheres, from each geom's axis-aligned box ``geom_aabb``, lie within the influence distance d_i;
+the table, a slab, is bounded by its top face), MuJoCo's ``mj_geomDistance`` gives the distance d
+and the nearest points p_1 (arm) and p_2 (other), n = (p_2 - p_1) / |p_2 - p_1|. Within d_i the
+pair adds one velocity damper (Faverjon and Tournassoud 1987), Eq. (A1) of docs/equations.md, to
+the IK QP (``robots.ik.constrained``, Eq. (A2)):
 
     d_dot = -n^T (J_1 - J_2) qdot >= -k (d - d_s)   <=>   n^T (J_1 - J_2) qdot <= k (d - d_s)
 
 with J_1, J_2 the translational Jacobians at p_1 and p_2 (J_2 = 0 for the scene), d_s the
 safety distance and k the damper rate: in continuous time d decays toward d_s at most at rate
-k and never crosses it. A pair beyond d_i adds nothing, so far from everything the IK is the
-plain one (the compiled DLS fast path).
+k and never crosses it. A moving obstacle is taken as still at each step (its own velocity is not
+in the row). A pair beyond d_i adds nothing, so far from everything the IK is the plain one (the
+compiled DLS fast path).
 
-The pairs: every arm geom against every obstacle (geoms named ``obstacle_<i>``, ``sim.obstacles``)
-and the table top, except the base links (within ``SELF_SKIP`` links of the world) against the
-table they stand on; and arm geoms against each other on bodies more than ``SELF_SKIP`` links
-apart along the chain, leaving out pairs within d_i at the home posture (neighbours by design).
+The pairs: every geom an arm joint moves against every obstacle (geoms named ``obstacle_<i>``,
+``sim.obstacles``) and the table top, except the links within ``SELF_SKIP`` links of the world
+against the table they stand on; and geoms of the robot against each other (one of them moved by
+the arm) on bodies more than ``SELF_SKIP`` links apart along the chain, leaving out pairs within
+d_i at the home posture (neighbours by design).
 
 References
 ----------
@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -163,21 +164,33 @@ class ArmClearance:
         arm = robot_geom_ids(model)
         names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(model.ngeom)]
         scene = [g for g in range(model.ngeom) if _scene_geom(names[g])]
-        self.scene_geoms = np.array(scene, dtype=int)
+        moved = {int(model.jnt_bodyid[model.dof_jntid[d]]) for d in self.dofs}
+        def moves(b: int) -> bool:   # an arm joint on the way from the world to body b
+            while b > 0:
+                if b in moved:
+                    return True
+                b = int(model.body_parentid[b])
+            return False
+        arm = np.array([g for g in arm if moves(int(model.geom_bodyid[g]))], dtype=int)   # the base cannot yield
         pairs: list[tuple[int, int, bool]] = []   # (arm geom, other geom, the other is on the arm)
         for o in scene:
             table = names[o] == TABLE_GEOM
             for g in arm:
                 if table and _chain_distance(model, int(model.geom_bodyid[g]), 0) <= SELF_SKIP:
-                    continue                          # the base links stand on the table
+                    continue                          # the links next to the base stand on the table
                 pairs.append((int(g), o, False))
+        data = mujoco.MjData(model)
+        data.qpos[robot.mj_qpos_adr] = robot.q_home
+        mujoco.mj_forward(model, data)
         if spec.self_collision:
-            data = mujoco.MjData(model)
-            data.qpos[robot.mj_qpos_adr] = robot.q_home
-            mujoco.mj_kinematics(model, data)
             fromto = np.zeros(6)
-            for i, g in enumerate(arm):
-                for h in arm[i + 1:]:
+            every = robot_geom_ids(model)   # the base too, as the other member of a pair
+            for i, g in enumerate(every):
+                for h in every[i + 1:]:
+                    if not (moves(int(model.geom_bodyid[g])) or moves(int(model.geom_bodyid[h]))):
+                        continue
+                    if not moves(int(model.geom_bodyid[g])):
+                        g, h = h, g
                     if (_chain_distance(model, int(model.geom_bodyid[g]), int(model.geom_bodyid[h])) > SELF_SKIP
                             and mujoco.mj_geomDistance(model, data, int(g), int(h), spec.influence_m, fromto)
                             >= spec.influence_m):
@@ -213,6 +226,8 @@ class ArmClearance:
         self._no_rows = (np.zeros((0, len(self.dofs))), np.zeros(0))
         self.min_distance = math.inf
         self._closest: tuple[int, int] | None = None
+        self.rows(data)   # compile the kernels now, not in a run's first step
+        self.min_distance, self._closest = math.inf, None
 
     @property
     def n_pairs(self) -> int:
@@ -243,7 +258,7 @@ class ArmClearance:
         if not cand.size:
             self.min_distance, self._closest = math.inf, None
             return self._no_rows
-        count = self._kernels[2](self.model._address, data._address, cand, cand.size, self._g1, self._g2,
+        count = self._kernels[1](self.model._address, data._address, cand, cand.size, self._g1, self._g2,
                                  self._mutual, spec.influence_m, data.geom_xpos, self._body, data.cdof,
                                  data.subtree_com, *self._tree, self._column, self._fromto, self._A, self._d,
                                  self._which)
@@ -257,14 +272,14 @@ class ArmClearance:
         return self._A[:count].copy(), spec.rate * (dd - spec.safety_m)
 
 
-_KERNELS: tuple | None = None
+_KERNELS: tuple[Any, Any] | None = None
 
 
-def _kernels() -> tuple:
-    """(broadphase, damper_rows, pair_rows) of ``sim._collision_kernel`` (numba is imported on first use)."""
+def _kernels() -> tuple[Any, Any]:
+    """(broadphase, pair_rows) of ``sim._collision_kernel`` (numba is imported on first use)."""
     global _KERNELS
     if _KERNELS is None:
-        from sim._collision_kernel import broadphase, damper_rows, pair_rows
+        from sim._collision_kernel import broadphase, pair_rows
 
-        _KERNELS = (broadphase, damper_rows, pair_rows)
+        _KERNELS = (broadphase, pair_rows)
     return _KERNELS

@@ -143,6 +143,9 @@ class FieldController:
         self.guard: ArmClearance | None = None
         self.guard_active = False
         if clearance is not None:
+            if clearance.rate * self.dt > 1.0:
+                raise SimError(f"clearance rate {clearance.rate:g}/s times the control step {self.dt:g} s exceeds 1: "
+                               "a damper would overshoot its safety distance in one step")
             dls = getattr(self.ik._impl, "gains", None)
             self.guard = ArmClearance(model, robot, clearance)
             self._cik = ConstrainedIK(robot, tuple(self.ik.rows), self.kin, QpGains(
@@ -338,6 +341,9 @@ class FieldController:
         v = self.lead(v)
         rows = None
         if self.guard is not None:
+            if not self.uses_mj_dynamics:   # no mj_step1 this step: MuJoCo's poses are the last step's
+                mujoco.mj_kinematics(model, data)
+                mujoco.mj_comPos(model, data)
             A, b = self.guard.rows(data)
             self.guard_active = False
             rows = (A, b) if len(b) else None

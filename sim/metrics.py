@@ -93,22 +93,40 @@ def orientation_metrics(t: np.ndarray, rot: np.ndarray, reference: np.ndarray, g
 
 #: a run is ``blocked`` when it ends further than this from its goal ...
 BLOCKED_GOAL_M = 0.005
-#: ... with a collision damper holding the arm within this last part of the run, s
+#: ... with a collision damper holding the arm back within this last part of the run, s
 BLOCKED_WINDOW_S = 0.5
 
 
 def clearance_metrics(t: np.ndarray, clearance: np.ndarray, active: np.ndarray, goal_error_m: float
                       ) -> dict[str, Any]:
-    """Scores of whole-arm clearance (``sim.collision``): ``arm_min_clearance_m`` (the smallest
-    arm-scene or arm-arm distance the dampers saw; None if nothing came within their reach),
-    ``guard_active_s`` (time with a damper at its bound) and ``blocked``: the run ends more than
-    ``BLOCKED_GOAL_M`` from its goal while a damper held the arm in its last ``BLOCKED_WINDOW_S``.
+    """Scores of whole-arm clearance (``sim.collision``).
 
-    t : (K+1,) s; clearance : (K+1,) m (inf: nothing within reach); active : (K+1,) bool.
+    Parameters
+    ----------
+    t : ndarray, shape (K+1,)
+        Step times, s.
+    clearance : ndarray, shape (K+1,)
+        The smallest distance the dampers saw at each step, m (inf: nothing within their reach).
+    active : ndarray of bool, shape (K+1,)
+        Steps with a damper at its bound.
+    goal_error_m : float
+        The run's final distance to its goal, m.
+
+    Returns
+    -------
+    dict
+        ``arm_min_clearance_m`` (over the run; None if nothing came within reach),
+        ``final_clearance_m`` (over the last ``BLOCKED_WINDOW_S``), ``guard_active_s`` (time with
+        a damper at its bound) and ``blocked``: the run ends more than ``BLOCKED_GOAL_M`` from its
+        goal while a damper held the arm back in its last ``BLOCKED_WINDOW_S`` (a damper at its bound
+        in some step of it, the arm within the dampers' reach through all of it).
     """
     dt = float(t[1] - t[0]) if len(t) > 1 else 0.0
     finite = clearance[np.isfinite(clearance)]
     late = t >= t[-1] - BLOCKED_WINDOW_S
+    last = clearance[late][np.isfinite(clearance[late])]
     return {"arm_min_clearance_m": float(finite.min()) if finite.size else None,
+            "final_clearance_m": float(last.min()) if last.size else None,
             "guard_active_s": float(np.count_nonzero(active) * dt),
-            "blocked": bool(goal_error_m > BLOCKED_GOAL_M and np.any(active[late]))}
+            "blocked": bool(goal_error_m > BLOCKED_GOAL_M and np.any(active[late])
+                            and bool(np.all(np.isfinite(clearance[late][:-1]))))}

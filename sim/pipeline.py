@@ -409,7 +409,7 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
         if result.metrics.get("blocked"):
             m = result.metrics
             print(f"blocked: {learner} / {name}{note} stopped {m['final_goal_error_m'] * 1e3:.0f} mm from its goal, "
-                  f"held {m['arm_min_clearance_m'] * 1e3:.0f} mm clear of the obstacle in its way", file=sys.stderr)
+                  f"held {m['final_clearance_m'] * 1e3:.0f} mm clear of what is in its way", file=sys.stderr)
         if on_run is not None:
             on_run(result)
         return result

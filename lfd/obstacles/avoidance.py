@@ -3,7 +3,8 @@ field converging (docs/equations.md, Eqs. (O1)-(O3)).
 
 A field f (a ``VelocityField``, a time-varying field such as ``lfd.goal.MovingGoalField``, or a
 field with a phase, ``lfd.learners.tracking``) is wrapped so that trajectories go around
-obstacles, never entering one, and still reach the goal:
+obstacles, never entering one, and are turned toward the goal beside them (what is proved and
+what is measured about reaching it: docs/equations.md):
 
 .. math::
 
@@ -15,9 +16,10 @@ obstacles, never entering one, and still reach the goal:
 
 with the obstacle velocity :math:`\\dot x_o` (0 for static ones), E's first column the reference
 direction r = (x - x_ref) / |x - x_ref| ([2]_), its others tangents orthogonal to the normal n, and
-D = diag(1 - eta/Gamma, 1 + eta/Gamma, ...) (Eq. (O3): eta fades the modulation out near the goal).
+D = diag(1 - eta w / Gamma^(1/rho), 1 + eta w / Gamma^(1/rho), ...) (w the weights of several
+obstacles; Eq. (O3): eta fades the modulation out near the goal).
 omega rises from 0 half an obstacle's size away to 1 on its surface, so near an obstacle the field
-is turned toward the goal (the convergence dynamics of [3]_) before it is modulated. With
+is turned toward the goal (the convergence dynamics of [3]_) before it is modulated; |b| <= |f|. With
 b = a r + t (t orthogonal to n) M b = lambda_r a r + lambda_t t: O(d), no matrix inverse. Several
 obstacles combine by the weighted product of [1]_ (``_kzb_weights``); overlapping ones are merged
 first (``lfd.obstacles.groups``). Preserved (checked in ``tests/test_obstacles.py``):
@@ -59,7 +61,7 @@ REACTIVITY = 0.5
 #: the goal must have Gamma >= this (1% of the obstacle's size outside its surface)
 MIN_GOAL_GAMMA = 1.01
 #: Gamma is floored at this in the eigenvalues: a step's stage that lands deep inside an obstacle
-#: gets a bounded velocity (at most 1 + GAMMA_FLOOR^(-1/rho) times the nominal speed)
+#: gets a bounded velocity (with ``INSIDE_NR_FLOOR``, a bounded multiple of the nominal speed)
 GAMMA_FLOOR = 0.5
 #: inside an obstacle n . r is floored at this (a merged group need not be star-shaped there)
 INSIDE_NR_FLOOR = 0.1
@@ -115,8 +117,8 @@ def _kzb_weights(gammas: Sequence[float]) -> list[float]:
 
 
 class AvoidingField(FieldWrapper):
-    """A velocity field modulated to avoid obstacles and still reach its goal (module docstring;
-    Eqs. (O1)-(O3) of docs/equations.md).
+    """A velocity field modulated to avoid obstacles and turned toward its goal beside them (module
+    docstring; Eqs. (O1)-(O3) of docs/equations.md).
 
     Parameters
     ----------
@@ -146,8 +148,6 @@ class AvoidingField(FieldWrapper):
        avoidance", Autonomous Robots 32(4), 433-454, 2012. doi:10.1007/s10514-012-9287-y
     """
 
-    time_varying = True
-
     def __init__(self, field: Any, obstacles: Sequence[Obstacle], reactivity: float = REACTIVITY,
                  min_goal_gamma: float = MIN_GOAL_GAMMA, convergence: bool = True) -> None:
         obs: list[Obstacle] = list(obstacles)
@@ -161,6 +161,12 @@ class AvoidingField(FieldWrapper):
                 raise ConfigError(f"obstacle {i} ({o.describe()}) is {o.dim}-D but the field is {field.dim}-D")
         if not (math.isfinite(reactivity) and reactivity > 0):
             raise ConfigError(f"reactivity must be > 0, got {reactivity}")
+        if not (isinstance(min_goal_gamma, (int, float)) and math.isfinite(min_goal_gamma) and min_goal_gamma >= 1.0):
+            raise ConfigError(f"min_goal_gamma must be a number >= 1, got {min_goal_gamma!r}")
+        if not isinstance(convergence, bool):
+            raise ConfigError(f"convergence must be True or False, got {convergence!r}")
+        if is_phased(field) and not isinstance(self, PhasedAvoidingField):
+            raise ConfigError("a field with a phase avoids obstacles through lfd.avoid (a PhasedAvoidingField)")
         if field.dim > 3:
             raise ConfigError(f"obstacles live in 2-D or 3-D task space; this field is {field.dim}-D")
         self.field = field
@@ -292,8 +298,9 @@ class AvoidingField(FieldWrapper):
         return out[0] if np.ndim(x0) == 1 else out
 
     def push_out(self, x: np.ndarray, t: float = 0.0) -> np.ndarray:
-        """Points x, shape (B, d), moved along each obstacle's normal until Gamma >= 1 (a few
-        Newton steps on sdf = (Gamma - 1) l; at most 1e-9 units outside the surface)."""
+        """Points x, shape (B, d), moved along each obstacle's normal toward Gamma >= 1: up to 8
+        rounds of a Newton step on sdf = (Gamma - 1) l per obstacle (exact for one convex
+        obstacle: 1e-9 units outside its surface)."""
         x = np.array(x, dtype=np.float64)
         for _ in range(8):
             moved = False
@@ -416,17 +423,16 @@ class PhasedAvoidingField(AvoidingField):
     act on its x-velocity of Eq. (T3); its phase law, Eq. (T4), is the nominal one.
 
     The phase never stops while the tool detours: h of Eq. (T4) is positive for every error, so a
-    detour only slows the phase, and past s = 1 the reference is the goal.
+    detour only slows the phase; as s goes to 1 the field becomes K (r(1) - x).
     """
 
     kind: ClassVar[FieldKind] = FieldKind.PHASED
-    time_varying = False
     field: Any   # a PhasedField (``lfd.field.PhasedField``)
 
     def __init__(self, field: Any, obstacles: Sequence[Obstacle], **kw: Any) -> None:
-        if any(o.moving for o in obstacles):
-            raise ConfigError("a field with a phase avoids static obstacles only")
         super().__init__(field, obstacles, **kw)
+        if any(u.moving for u in self.units):
+            raise ConfigError("a field with a phase avoids static obstacles only")
 
     @property
     def duration(self) -> float:
@@ -475,8 +481,8 @@ class PhasedAvoidingField(AvoidingField):
             raise ConfigError("an obstacle-avoiding field integrates with rk4 on the given times only")
         xb = np.atleast_2d(np.asarray(x0, dtype=np.float64)).copy()
         B = len(xb)
-        st = np.atleast_2d(np.asarray(xb if start is None else start, dtype=np.float64))
-        fns = [self.phase_point_fn(st[i] if self.field.conditioned else None) for i in range(B)]
+        st = np.broadcast_to(np.asarray(xb if start is None else start, dtype=np.float64), xb.shape)
+        fns = [self.phase_point_fn(st[i]) for i in range(B)]
         sb = np.broadcast_to(np.asarray(s0, dtype=np.float64), (B,)).copy()
         t = np.asarray(t, dtype=np.float64)
         xs, ss = np.empty((B, t.size, self.dim)), np.empty((B, t.size))

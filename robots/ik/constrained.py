@@ -4,16 +4,18 @@
     s.t.      max(-v_max, g (q_lo - q) / dt) <= qdot <= min(v_max, g (q_hi - q) / dt)
               A qdot <= b
 
-with J = J(q)[rows] (m, n), v = twist[rows], W = diag(weights[rows]), z = k_p (q_home - q) the
-posture pull of ``robots.ik.dls`` and mu a small regularisation, so that far from every bound the
-solution is the damped least-squares solution of ``DlsBackend`` with damping mu in the joint metric.
+(Eq. (A2) of docs/equations.md) with J = J(q)[rows] (m, n), v = twist[rows], W = diag(weights[rows]),
+z = k_p (q_home - q) the posture pull of ``robots.ik.dls`` and mu > 0 a small regularisation: far
+from every bound and singularity the task is met to O(mu) and the posture term acts in J's null
+space, as in ``DlsBackend``.
 A joint already beyond a soft bound may stay there (its bound is widened to 0). The rows (A, b)
 come from the caller; ``sim.collision`` builds one velocity damper per (arm geom, obstacle) pair
 (Faverjon and Tournassoud 1987).
 
 Solved by DAQP (Arnström, Bemporad and Axehill 2022; a dependency of pink). If the rows conflict
 with the bounds (a push drove the arm inside a damper's safety distance), they are relaxed to
-``A qdot <= max(b, 0)`` (no approach, no forced retreat), which qdot = 0 always satisfies.
+``A qdot <= max(b, 0)`` (no approach, no forced retreat), which qdot = 0 always satisfies; if DAQP
+still reports no solution (it cannot, short of a numerical failure) the arm is commanded to stop.
 
 References
 ----------
@@ -55,7 +57,9 @@ class QpGains:
     rotation_weight: float = 0.3
 
     def __post_init__(self) -> None:
-        for name in ("mu", "posture_gain", "limit_margin", "rotation_weight"):
+        if isinstance(self.mu, bool) or not isinstance(self.mu, (int, float)) or not 0 < self.mu < 1e6:
+            raise RobotError(f"QP IK gain mu must be a number > 0, got {self.mu!r}")
+        for name in ("posture_gain", "limit_margin", "rotation_weight"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 <= value < 1e6):
                 raise RobotError(f"QP IK gain {name} must be a number >= 0, got {value!r}")
@@ -95,8 +99,33 @@ class ConstrainedIK:
 
     def solve(self, q: np.ndarray, twist: np.ndarray, dt: float, A: np.ndarray, b: np.ndarray,
               kin: Kinematics | None = None) -> tuple[np.ndarray, bool]:
-        """(qdot (n,), relaxed) at joints q (n,) for the twist (6,), over dt s, subject to
-        A qdot <= b, A (k, n), b (k,). ``kin``: a Kinematics already updated at q."""
+        """Solve Eq. (A2).
+
+        Parameters
+        ----------
+        q : ndarray, shape (n,)
+            Joint positions, rad or m.
+        twist : ndarray, shape (6,)
+            The desired tool twist (vx vy vz wx wy wz), world, m/s and rad/s.
+        dt : float
+            The control step, s (> 0).
+        A, b : ndarray, shapes (k, n) and (k,)
+            The rows A qdot <= b (m/s).
+        kin : Kinematics, optional
+            Already updated at q.
+
+        Returns
+        -------
+        (ndarray, bool)
+            qdot, shape (n,), and whether the rows had to be relaxed (module docstring).
+        """
+        if not dt > 0:
+            raise RobotError(f"QP IK: the step must be > 0 s, got {dt}")
+        A = np.asarray(A, dtype=float)
+        b = np.asarray(b, dtype=float)
+        if A.ndim != 2 or A.shape[1] != self.n or b.shape != (A.shape[0],):
+            raise RobotError(f"QP IK: rows must be A ({A.shape[0] if A.ndim == 2 else '?'}, {self.n}) and b of "
+                             f"matching length, got {A.shape} and {b.shape}")
         if kin is None:
             kin = self.kinematics
             kin.update(q)
@@ -107,16 +136,15 @@ class ConstrainedIK:
         H = jac.T @ wj + self._mu_eye
         f = -(wj.T @ v) - self.gains.mu * z
         lo, hi = self.bounds(q, dt)
-        A = np.ascontiguousarray(A, dtype=float).reshape(-1, self.n)
-        b = np.asarray(b, dtype=float).reshape(-1)
+        A = np.ascontiguousarray(A)
         x, ok = self._qp(H, f, A, b, lo, hi)
         relaxed = False
         if not ok:
             x, ok = self._qp(H, f, A, np.maximum(b, 0.0), lo, hi)
             relaxed = True
             self.relaxed += 1
-            if not ok:
-                raise RobotError("QP IK: no joint velocity satisfies the collision rows at this configuration")
+            if not ok:   # qdot = 0 meets the relaxed rows and every bound: stop
+                x = np.zeros(self.n)
         self.active = A @ x >= b - 1e-9 if len(b) else np.zeros(0, dtype=bool)
         return x, relaxed
 

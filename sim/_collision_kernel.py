@@ -14,17 +14,34 @@ import numba
 import numpy as np
 
 
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _box_point_gap(xpos: np.ndarray, xmat: np.ndarray, g: int, centre: np.ndarray, half: np.ndarray,
+                   p0: float, p1: float, p2: float) -> float:  # pragma: no cover - compiled
+    """Distance from the point p to geom g's bounding box (its ``geom_aabb``: centre (3,) and half
+    sizes (3,) in the geom's frame), world."""
+    d0, d1, d2 = p0 - xpos[g, 0], p1 - xpos[g, 1], p2 - xpos[g, 2]
+    acc = 0.0
+    for k in range(3):   # the point in the geom's frame, minus the box centre, outside the box
+        u = xmat[g, k] * d0 + xmat[g, 3 + k] * d1 + xmat[g, 6 + k] * d2 - centre[k]
+        e = abs(u) - half[k]
+        if e > 0.0:
+            acc += e * e
+    return np.sqrt(acc)
+
+
 @numba.njit(cache=True, fastmath=False, nogil=True)
-def broadphase(xpos: np.ndarray, xmat: np.ndarray, geoms: np.ndarray, centre: np.ndarray, radius: np.ndarray,
-               a: np.ndarray, b: np.ndarray, slab_top: np.ndarray, influence: float,
+def broadphase(xpos: np.ndarray, xmat: np.ndarray, geoms: np.ndarray, centre: np.ndarray, half: np.ndarray,
+               radius: np.ndarray, a: np.ndarray, b: np.ndarray, slab_top: np.ndarray, influence: float,
                out: np.ndarray) -> int:  # pragma: no cover - compiled
-    """Write into out (P,) the indices of the pairs whose bounding spheres lie within
-    ``influence`` and return their count.
+    """Write into out (P,) the indices of the pairs that may lie within ``influence`` and return
+    their count.
 
     xpos (ngeom, 3), xmat (ngeom, 9): MuJoCo's geom poses; geoms (G,): the geoms involved;
-    centre (G, 3), radius (G,): each one's bounding sphere in its own frame; a, b (P,): the pairs,
-    as indices into geoms; slab_top (P,): NaN, or the geom b is a slab whose top face is at this
-    height above its centre (the table): then the bound is the sphere's height over that face.
+    centre, half (G, 3): each one's bounding box (``geom_aabb``) in its own frame, radius (G,) the
+    sphere around it; a, b (P,): the pairs, as indices into geoms. The bound of a pair is the larger
+    of (the distance from a's box to b's sphere) and (from b's box to a's sphere); slab_top (P,):
+    NaN, or geom b is a slab whose top face lies this far above its centre (the table): then the
+    bound is a's sphere's height over that face.
     """
     G = geoms.shape[0]
     c = np.empty((G, 3))
@@ -37,8 +54,10 @@ def broadphase(xpos: np.ndarray, xmat: np.ndarray, geoms: np.ndarray, centre: np
     for p in range(a.shape[0]):
         i, j = a[p], b[p]
         if np.isnan(slab_top[p]):
-            d0, d1, d2 = c[i, 0] - c[j, 0], c[i, 1] - c[j, 1], c[i, 2] - c[j, 2]
-            gap = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - radius[i] - radius[j]
+            gap = _box_point_gap(xpos, xmat, geoms[i], centre[i], half[i], c[j, 0], c[j, 1], c[j, 2]) - radius[j]
+            if gap < influence:
+                gap = max(gap, _box_point_gap(xpos, xmat, geoms[j], centre[j], half[j], c[i, 0], c[i, 1], c[i, 2])
+                          - radius[i])
         else:
             gap = c[i, 2] - radius[i] - (xpos[geoms[j], 2] + slab_top[p])
         if gap < influence:

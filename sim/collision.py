@@ -2,8 +2,8 @@
 
 The field keeps the tool point out of the obstacles (``lfd.obstacles``); this module keeps the
 rest of the arm out of them, and out of the table and of itself, through the IK. For each pair
-(a geom of the arm, a geom it must not touch) that passes a broad phase (the pair's bounding
-spheres, from each geom's axis-aligned box ``geom_aabb``, lie within the influence distance d_i;
+(a geom of the arm, a geom it must not touch) that passes a broad phase (each geom's box
+``geom_aabb``, in its own frame, within the influence distance d_i of the other's bounding sphere;
 the table, a slab, is bounded by its top face), MuJoCo's ``mj_geomDistance`` gives the distance d
 and the nearest points p_1 (arm) and p_2 (other), n = (p_2 - p_1) / |p_2 - p_1|. Within d_i the
 pair adds one velocity damper (Faverjon and Tournassoud 1987), Eq. (A1) of docs/equations.md, to
@@ -205,6 +205,7 @@ class ArmClearance:
         self._slab = np.array([model.geom_size[p[1], 2] if names[p[1]] == TABLE_GEOM else np.nan for p in pairs])
         aabb = model.geom_aabb[self._geoms] if geoms else np.zeros((0, 6))
         self._centre = np.ascontiguousarray(aabb[:, :3])
+        self._half = np.ascontiguousarray(aabb[:, 3:])
         self._radius = np.ascontiguousarray(np.linalg.norm(aabb[:, 3:], axis=1))
         self._idx = np.zeros(len(pairs), dtype=np.int64)
         self._body = np.ascontiguousarray(model.geom_bodyid, dtype=np.int64)
@@ -235,11 +236,11 @@ class ArmClearance:
         return len(self.pairs)
 
     def candidates(self, data: mujoco.MjData) -> np.ndarray:
-        """Indices of the pairs whose bounding spheres lie within d_i, shape (c,)."""
+        """Indices of the pairs whose broad-phase bound (module docstring) lies within d_i, shape (c,)."""
         if not self.pairs:
             return self._idx[:0]
-        count = self._kernels[0](data.geom_xpos, data.geom_xmat, self._geoms, self._centre, self._radius,
-                                 self._a, self._b, self._slab, self.spec.influence_m, self._idx)
+        count = self._kernels[0](data.geom_xpos, data.geom_xmat, self._geoms, self._centre, self._half,
+                                 self._radius, self._a, self._b, self._slab, self.spec.influence_m, self._idx)
         return self._idx[:count]
 
     @property

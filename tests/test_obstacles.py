@@ -448,7 +448,7 @@ def test_tracking_field_avoids_obstacles_and_its_phase_keeps_going() -> None:
     v0, sdot0 = field.phase_point_fn(starts[0])(starts[0], 0.0)
     assert sdot == sdot0 and np.all(np.isfinite(v))
     with pytest.raises(ConfigError, match="static obstacles"):
-        avoid(field, [Sphere([0.0, 0.0], 0.1, velocity=[0.1, 0.0])])
+        avoid(field, [Sphere([0.5, 0.5], 0.1, velocity=[0.1, 0.0])])
 
 
 @pytest.mark.parametrize("name", ["spiral", "spiral3d", "lasa:Sshape"])

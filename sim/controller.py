@@ -146,12 +146,10 @@ class FieldController:
             if clearance.rate * self.dt > 1.0:
                 raise SimError(f"clearance rate {clearance.rate:g}/s times the control step {self.dt:g} s exceeds 1: "
                                "a damper would overshoot its safety distance in one step")
-            dls = getattr(self.ik._impl, "gains", None)
+            own = self.ik._impl.gains   # DlsGains or PinkGains: the QP keeps the IK's posture and limits
             self.guard = ArmClearance(model, robot, clearance)
             self._cik = ConstrainedIK(robot, tuple(self.ik.rows), self.kin, QpGains(
-                posture_gain=float(getattr(dls, "posture_gain", 1.0)),
-                limit_margin=float(getattr(dls, "limit_margin", 0.02)),
-                speed_fraction=float(getattr(dls, "speed_fraction", 0.97))))
+                posture_gain=own.posture_gain, limit_margin=own.limit_margin, speed_fraction=own.speed_fraction))
 
     def _setup_geometry(self, placement: Placement, gains: Gains) -> None:
         """The twist's constants: o (3,), s A (3, d), A^T / s (d, 3), k_n n and n (3,), n . o, k_r."""

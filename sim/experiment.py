@@ -179,7 +179,6 @@ class Experiment:
                 raise SimError(f"clearance must be a Clearance, None or 'auto', not '{clearance}'")
             table = mujoco.mj_name2id(robot.mj_model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM) >= 0
             clearance = Clearance() if (self.obstacles or table) else None
-        self.clearance = clearance
         self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, gains=gains, feedforward=feedforward,
                                             clearance=clearance)
         self.physics = ArmPhysics.from_robot(robot)

@@ -213,10 +213,6 @@ def obstacle_contacts(robot: RobotModel, q: np.ndarray, t: np.ndarray | None = N
         hits = 0
         for c in data.contact[:data.ncon]:
             g1, g2 = int(c.geom1), int(c.geom2)
-            if c.dist >= 0.0:   # within a geom's margin, not touching
-                if (is_obstacle[g1] and is_robot[g2]) or (is_obstacle[g2] and is_robot[g1]):
-                    clearance = min(clearance, float(c.dist))
-                continue
             if (is_obstacle[g1] and is_robot[g2]) or (is_obstacle[g2] and is_robot[g1]):
                 hits += 1
                 r, o = (g2, g1) if is_obstacle[g1] else (g1, g2)

@@ -340,10 +340,11 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
                      control_hz=job.control_hz, ik=job.ik, fps=job.fps, obstacles=obstacles,
                      gains=Gains(lead_s=OBSTACLE_LEAD_S) if obstacles else Gains(),
                      clearance="auto" if job.arm_clearance else None)
-    avoided = grown(obstacles, hand_margin_m(robot) / exp.placement.scale if job.arm_clearance else 0.0)
+    hand = hand_margin_m(robot) if job.arm_clearance else 0.0
+    avoided = grown(obstacles, hand / exp.placement.scale)
     for o, g in zip(obstacles, avoided):
         if float(g.gamma(demos.goal)) < MIN_GOAL_GAMMA:
-            raise ConfigError(f"the demos' goal lies within the hand's size ({hand_margin_m(robot) * 1e3:.0f} mm) "
+            raise ConfigError(f"the demos' goal lies within the hand's size ({hand * 1e3:.0f} mm) "
                               f"of the {o.describe()}: move the obstacle, or give --no-arm-clearance")
     if goal_motion is not None:
         check_goal_motion(goal_motion, exp, demos, avoided)

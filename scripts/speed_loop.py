@@ -11,8 +11,10 @@ and their ratio; the same ratio in CPU time (``time.thread_time`` over the whole
 as many bare steps: preemption by other processes does not count), and the real-time factor
 (simulated s per wall s, and per CPU s); the targets (ratio <= 3, real-time factor >= 100) are
 marked MET / NOT MET. Then where the time goes (an instrumented copy of the same step),
-the field alone, and what dm_control's ``Environment.step`` costs for the same step. A summary
-closes the run.
+the field alone, and what the dm_env ``Environment.step`` of ``sim.make_environment`` costs for
+the same step (same controller, same field, timed step by step in blocks interleaved with the
+loop's; target: its median <= 1.3x the loop's), and the same ratio against a copy of the loop's
+step in short alternating blocks (load hits both alike). A summary closes the run.
 
 Part 2 (actuation): tracking and push metrics of the same field with position servos (velocity
 feed-forward, and the plain u = q + qdot dt) and with computed torque (``sim.controller``).
@@ -80,8 +82,7 @@ def holding_data(exp: sim.Experiment, q: np.ndarray) -> mujoco.MjData:
 def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict[str, np.ndarray]:
     """Per-stage wall times of ``steps`` control steps of the rollout loop (the same calls as
     ``sim.loop.execute``, timed one by one), shape (steps,) each."""
-    env = sim.make_environment(exp.robot, exp.placement, exp.start, field.goal, duration_s=exp.duration_s,
-                               rotation_ref=exp.rotation_ref, physics=exp.physics, **exp.options)
+    env = environment(exp, field)
     env.reset()
     task = env.task
     m, d = env.physics.model.ptr, env.physics.data.ptr
@@ -128,29 +129,108 @@ def field_cost(field: lfd.VelocityField, x: np.ndarray, n: int = 20000) -> np.nd
     return out
 
 
-def env_steps(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> np.ndarray:
-    """Wall time of dm_control ``Environment.step`` with the field as policy, shape (steps,)."""
-    env = sim.make_environment(exp.robot, exp.placement, exp.start, field.goal, duration_s=exp.duration_s,
-                               rotation_ref=exp.rotation_ref, physics=exp.physics, **exp.options)
+def environment(exp: sim.Experiment, field: lfd.VelocityField) -> Any:
+    """The dm_env environment (``sim.make_environment``) of the rollouts that ``cost`` times: the same
+    robot, placement, start, goal, controller options and compiled model."""
+    return sim.make_environment(exp.robot, exp.placement, exp.start, field.goal, duration_s=exp.duration_s,
+                                rotation_ref=exp.rotation_ref, physics=exp.physics, **exp.options)
+
+
+def env_steps(env: Any, field: lfd.VelocityField, steps: int) -> tuple[np.ndarray, float]:
+    """Wall time of dm_env ``Environment.step`` with the field as policy, shape (steps,), from a reset
+    (untimed), at most one episode (a step past its end would time a reset), and the CPU time of
+    all of them (``time.thread_time``, as ``RunTrace.cpu_s`` for the loop).
+
+    The policy feeds the field the observed ``task_position``, the point the lean loop feeds it (the
+    environment computes it for the observation, as the loop does for the field); each timed call
+    covers the field and the step, as the lean loop's step does.
+    """
     ts = env.reset()
-    f, to_task = field.single_point_evaluator(), exp.placement.to_task
-    out = np.empty(steps)
+    f = field.single_point_evaluator()
+    out = np.empty(min(steps, env.task.n_steps))
     clock = time.perf_counter
-    for k in range(steps):
+    cpu0 = time.thread_time()
+    for k in range(len(out)):
         t0 = clock()
-        ts = env.step(f(to_task(ts.observation["ee_position"])))
+        ts = env.step(f(ts.observation["task_position"]))
         out[k] = clock() - t0
-    return out
+    return out, time.thread_time() - cpu0
+
+
+def interleaved_steps(exp: sim.Experiment, field: lfd.VelocityField, blocks: int,
+                      block: int = 100) -> tuple[np.ndarray, np.ndarray]:
+    """Wall times of dm_env ``Environment.step`` (policy as ``env_steps``) and of a copy of the lean
+    loop's step (the calls of ``sim.loop``'s loop, recording q, qdot, p and v as it does), in
+    ``blocks`` pairs of ``block`` steps each, alternating, on two copies of the model: short
+    blocks, so that load on the machine hits both alike, each warm in its block (alternating
+    every step would leave both cold, which flatters the environment). Returns each one's
+    per-block medians, shape (blocks,). Episodes restart as needed (untimed)."""
+    from sim.task import ArmPhysics
+
+    env, twin = (sim.make_environment(exp.robot, exp.placement, exp.start, field.goal, duration_s=exp.duration_s,
+                                      rotation_ref=exp.rotation_ref, physics=ArmPhysics.from_robot(exp.robot),
+                                      **exp.options) for _ in range(2))
+    task, clock = twin.task, time.perf_counter
+    ctl, qadr, dadr, n = task.controller, exp.robot.mj_qpos_adr, exp.robot.mj_dof_adr, exp.robot.n
+    split = ctl.uses_mj_dynamics
+    measure = ctl.measure_site if split else ctl.measure
+    n_sub = int(round(task.control_dt / twin.physics.model.opt.timestep))
+    K = task.n_steps
+    Q, Qd, P, V = np.empty((K, n)), np.empty((K, n)), np.empty((K, 3)), np.empty((K, exp.placement.dim))
+    t_env, t_loop, out = np.empty(blocks), np.empty(blocks), np.empty(block)
+    ts, f_env, k_env = env.reset(), field.single_point_evaluator(), 0
+    k = K
+    for b in range(blocks):
+        if k_env + block >= K:   # a new episode (untimed)
+            ts, f_env, k_env = env.reset(), field.single_point_evaluator(), 0
+        for i in range(block):
+            t0 = clock()
+            ts = env.step(f_env(ts.observation["task_position"]))
+            out[i] = clock() - t0
+        k_env += block
+        t_env[b] = np.median(out)
+        if k + block >= K:
+            twin.reset()
+            f_loop, k = field.single_point_evaluator(), 0
+            m, d = twin.physics.model.ptr, twin.physics.data.ptr
+            ctl.bind(d)
+            qpos, qvel, warn = d.qpos, d.qvel, d.warning.number
+        for i in range(block):
+            t0 = clock()
+            if split:
+                mujoco.mj_step1(m, d)
+            q = qpos[qadr]
+            p = measure(q)
+            Q[k], Qd[k], P[k] = q, qvel[dadr], p
+            v = V[k] = f_loop(ctl.to_task(p))
+            task.apply(d, q, None, v, m)
+            if split:
+                mujoco.mj_step2(m, d)
+                if n_sub > 1:
+                    mujoco.mj_step(m, d, n_sub - 1)
+            else:
+                mujoco.mj_step(m, d, n_sub)
+            if warn[0] or warn[1] or warn[2] or warn[3]:
+                raise sim.SimError("the copy of the loop diverged")
+            out[i] = clock() - t0
+            k += 1
+        t_loop[b] = np.median(out)
+    return t_env, t_loop
 
 
 def cost(exp: sim.Experiment, field: lfd.VelocityField, repeats: int) -> dict[str, float]:
     """Print the control step against a bare mj_step and the real-time factor; returns the ratios."""
     m = exp.physics.model.ptr
     exp.simulate(field)                          # warm-up: JIT kernels, caches
-    bare, loop, rtf, cpu_ratio, cpu_rtf = [], [], [], [], []
-    for _ in range(repeats):
+    env = environment(exp, field)
+    env_steps(env, field, 200)                   # warm-up
+    bare, loop, envs, rtf, cpu_ratio, cpu_rtf, env_cpu = [], [], [], [], [], [], []
+    for _ in range(repeats):   # interleaved blocks: loop, environment, bare (machine load hits all alike)
         ro = exp.simulate(field)
         loop.append(ro.step_time_s)
+        e, e_cpu = env_steps(env, field, len(ro.step_time_s))
+        envs.append(e)
+        env_cpu.append((e_cpu / len(e)) / (ro.cpu_s / len(ro.step_time_s)))
         rtf.append(ro.realtime_factor)
         d = holding_data(exp, ro.q[0])
         b, b_cpu = bare_steps(m, d, len(ro.step_time_s))
@@ -176,11 +256,21 @@ def cost(exp: sim.Experiment, field: lfd.VelocityField, repeats: int) -> dict[st
         print(f"  {name:18s} {np.median(v) * 1e6:7.1f} us  {np.median(v) / total:5.1%}")
     fc = field_cost(field, exp.demos.x[exp.demo_index])
     print(f"field alone           : {stats(fc)}   ({np.median(fc) / np.median(bare_t):.2f}x a bare mj_step)")
-    envt = env_steps(exp, field, 2000)
-    print(f"dm_control Environment.step with the same controller: {stats(envt)}  "
-          f"({np.median(envt) / np.median(loop_t):.1f}x the lean loop)")
+    envt = np.concatenate(envs)
+    env_ratio = float(np.median(envt) / np.median(loop_t))
+    pairs = ", ".join(f"{np.median(e) / np.median(lp):.2f}" for e, lp in zip(envs, loop))
+    print(f"dm_env Environment.step with the same controller: {stats(envt)}   ({len(envt)} steps, "
+          f"interleaved with the loop's)\n  Environment.step / lean loop step, wall medians: {env_ratio:.2f}    "
+          f"target <= 1.3: {'MET' if env_ratio <= 1.3 else 'NOT MET'} (load average {os.getloadavg()[0]:.2f})\n"
+          f"  per block pair, wall medians: {pairs}"
+          f"\n  CPU time per step: {np.median(env_cpu):.2f} (runs: {', '.join(f'{r:.2f}' for r in env_cpu)})")
+    t_env, t_loop = interleaved_steps(exp, field, 50 * repeats)
+    print(f"  in blocks of 100 steps alternating with a copy of the loop's step: {np.median(t_env) * 1e6:.1f} us / "
+          f"{np.median(t_loop) * 1e6:.1f} us, ratio per block pair: median {np.median(t_env / t_loop):.2f}, "
+          f"quartiles {np.percentile(t_env / t_loop, 25):.2f} .. {np.percentile(t_env / t_loop, 75):.2f} "
+          f"({len(t_env)} pairs)")
     return {"ratio": ratio, "cpu_ratio": c_ratio, "rtf": float(np.median(rtf)), "cpu_rtf": c_rtf,
-            "field_ratio": float(np.median(fc) / np.median(bare_t))}
+            "field_ratio": float(np.median(fc) / np.median(bare_t)), "env_ratio": env_ratio}
 
 
 def actuation(robot_name: str, demos: lfd.DemoSet, field: lfd.VelocityField, ik: str, plane: str) -> None:
@@ -249,7 +339,7 @@ def main() -> int:
         print(f"  {name:12s} step ratio {r['cpu_ratio']:5.2f} [{r['ratio']:5.2f}] "
               f"({'met' if r['cpu_ratio'] <= 3 else 'not met'})   real-time factor {r['cpu_rtf']:5.0f} "
               f"[{r['rtf']:4.0f}] ({'met' if r['cpu_rtf'] >= 100 else 'not met'})   "
-              f"field alone {r['field_ratio']:.2f}x mj_step")
+              f"field alone {r['field_ratio']:.2f}x mj_step   env step {r['env_ratio']:.2f}x loop step")
     if not args.skip_actuation:
         for field in fields:
             actuation(args.robot, demos, field, args.ik, args.plane)

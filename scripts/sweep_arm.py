@@ -25,15 +25,19 @@ joint limits; a diverged simulation is a failed run (recorded with its error).
 
 A run whose worker process dies (kill -9, out of memory) is tried again
 (``lfd.bench.executor.run_parallel``, up to ``MAX_ATTEMPTS`` tries); its record's ``attempts`` counts
-the tries. A run given up is recorded as failed with the reason and ``lost: true`` (a later sweep
-tries it again); every other run finishes. Ctrl-C or SIGTERM stops the workers and ends with
-``sweep_arm: interrupted`` and exit code 130; the workers also end when this process is killed.
+the tries and its ``node`` says where the last one ran (``{"host"}``; on Ray also the node's ``ip``
+and ``ray_node_id``); the summary's ``run.nodes`` counts the runs computed per node. ``attempts``,
+``node`` and the timings (``run_s``, ``run_cpu_s``, ``control_step_us``, ``realtime_factor``) are
+the fields that may differ between two sweeps of the same runs. A run given up is recorded as
+failed with the reason and ``lost: true`` (a later sweep tries it again); every other run
+finishes. Ctrl-C or SIGTERM stops the workers and ends with ``sweep_arm: interrupted`` and exit
+code 130; the workers also end when this process is killed.
 
 Examples::
 
     python scripts/sweep_arm.py --out out/sweep --workers 2
     python scripts/sweep_arm.py --out out/sweep --executor ray --workers 2
-    python scripts/sweep_arm.py --out out/sweep --executor ray --address 10.0.0.5:6379
+    python scripts/sweep_arm.py --out out/sweep --executor ray --address 10.0.0.5:6379   # README: on a cluster
     python scripts/sweep_arm.py --out /tmp/tp --throughput 2     # runs/s with 1 and 2 workers
 """
 
@@ -199,7 +203,8 @@ def lost_record(spec: RunSpec, failure: Any) -> dict[str, Any]:
 def sweep(specs: list[RunSpec], out: Path, workers: int, executor: str, address: str | None,
           fresh: bool = False, progress: bool = True) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Run every spec without a matching record in ``out/runs`` (all with ``fresh``); returns the
-    records in spec order and run info (computed, cached, wall_s, runs_per_s)."""
+    records in spec order and run info (computed, cached, wall_s, runs_per_s, nodes: runs computed
+    per node, by Ray node id or host name)."""
     from tqdm.auto import tqdm
 
     from lfd.bench.executor import run_parallel
@@ -217,10 +222,13 @@ def sweep(specs: list[RunSpec], out: Path, workers: int, executor: str, address:
     bar = tqdm(total=len(specs), initial=len(specs) - len(todo), desc="sweep", unit="run", disable=not progress)
 
     stamps: list[float] = []
+    nodes: dict[str, int] = {}
 
-    def finished(j: int, rec: dict[str, Any], attempts: int) -> None:
+    def finished(j: int, rec: dict[str, Any], attempts: int, node: dict[str, str]) -> None:
         i = todo[j]
-        rec = {**rec, "attempts": attempts}
+        rec = {**rec, "attempts": attempts, "node": node}
+        where = node.get("ray_node_id") or node["host"]
+        nodes[where] = nodes.get(where, 0) + 1
         write_json(runs / f"{specs[i].name}.json", rec)
         records[i] = rec
         stamps.append(time.perf_counter())
@@ -244,7 +252,7 @@ def sweep(specs: list[RunSpec], out: Path, workers: int, executor: str, address:
     steady = (n - h) / (stamps[-1] - stamps[h - 1]) if h >= 1 and stamps[-1] > stamps[h - 1] else None
     info = {"computed": len(todo), "cached": len(specs) - len(todo), "wall_s": wall,
             "runs_per_s": len(todo) / wall if todo and wall > 0 else None, "steady_runs_per_s": steady,
-            "workers": workers, "executor": executor}
+            "workers": workers, "executor": executor, "nodes": dict(sorted(nodes.items()))}
     return [r for r in records if r is not None], info
 
 
@@ -517,8 +525,9 @@ def _main(argv: list[str] | None) -> int:
                                           "summary": summarize(records)})
         ok = sum(r["success"] for r in records)
         rate = f", {info['runs_per_s']:.2f} runs/s" if info["runs_per_s"] else ""
+        where = f" on {len(info['nodes'])} node(s)" if args.executor == "ray" and info["nodes"] else ""
         print(f"{info['computed']} run(s) computed, {info['cached']} from {out / 'runs'}, in {info['wall_s']:.1f} s"
-              f"{rate}; {ok}/{len(records)} succeeded")
+              f"{rate}{where}; {ok}/{len(records)} succeeded")
         print(f"wrote {out / 'summary.json'}" + "".join(f", {p}" for p in figures))
         return 0
     except (LfdError, SimError, RobotError, OSError) as e:

@@ -23,7 +23,8 @@ As a dm_env environment (for RL; gymnasium through ``shimmy.DmControlCompatibili
     ts = env.step(v)                               # v: task velocity, shape (d,)
 
 The top level is what a user of the arm needs (``__all__``); the lower layer lives in its modules:
-``sim.task`` (``ArmPhysics``, ``FieldTrackingTask``), ``sim.loop`` (the closed loop),
+``sim.task`` (``ArmPhysics``, ``FieldTrackingTask``), ``sim.env`` (``FieldEnvironment``, the dm_env
+environment with the loop's lean step), ``sim.loop`` (the closed loop),
 ``sim.controller`` (twist -> IK -> actuators), ``sim.render`` (videos), ``sim.metrics`` (scores),
 ``sim.obstacles`` (obstacles as MuJoCo geoms, contacts), ``sim.collision`` (whole-arm collision
 dampers in the IK, the hand margin), ``sim.errors`` (``SimError`` and its kinds).

@@ -18,14 +18,19 @@
   not replay a run exactly).
 
 The fast loop (``sim.loop``) uses these same Physics and Task objects but calls
-``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly: ``Environment.step``,
-with its observation dicts, reward and wrapped-array access, costs noticeably more per control
-step (scripts/speed_loop.py measures both).
+``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly. The environment that
+``make_environment`` returns (``sim.env.FieldEnvironment``, a ``control.Environment``) steps the
+same way: the same physics and control as the loop, plus the observation and the reward read from
+views of the raw MuJoCo arrays (``FieldTrackingTask.observe``, ``reward_now``), so its step costs
+little more than the loop's (scripts/speed_loop.py measures both; reports/env_step.md).
 """
 
 from __future__ import annotations
 
 import collections
+import functools
+import math
+import operator
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
@@ -33,7 +38,6 @@ import mujoco
 import numpy as np
 from dm_control import mujoco as dm_mujoco
 from dm_control.rl import control
-from dm_control.utils import rewards
 from dm_env import specs
 
 from lfd.field import goal_at, is_time_varying
@@ -47,12 +51,24 @@ from sim.placement import IK_TOLERANCE_M, IK_TOLERANCE_RAD, POSE_POSTURE_GAIN, P
 if TYPE_CHECKING:
     from lfd.demos import DemoSet
     from lfd.field import VelocityField
+    from sim.env import FieldEnvironment
 
 OBSERVATION_KEYS: tuple[str, ...] = ("joint_positions", "joint_velocities", "ee_position", "task_position",
                                      "goal", "joint_limit")   # plus "field_velocity" with a field
 V_MAX_M_S = 2.0          # action bound, m/s of tool speed: far above any demo speed
 START_DRAWS = 50         # random starts tried per episode before giving up (out of reach)
 GOAL_TOLERANCE_M = 0.005
+REWARD_MARGIN_M = 0.05   # the reward's Gaussian fall-off: 0.1 this far beyond the goal tolerance
+# dm_control.utils.rewards.tolerance's Gaussian with value_at_margin = 0.1: exp(-(d scale)^2 / 2)
+_REWARD_SCALE = math.sqrt(-2.0 * math.log(0.1))
+_F64 = np.dtype(np.float64)
+
+
+def _contiguous(a: np.ndarray, idx: np.ndarray) -> np.ndarray | None:
+    """The view ``a[idx[0]:idx[-1] + 1]`` when the indices idx, shape (n,), are consecutive, else
+    None (copying a slice view costs less than fancy indexing)."""
+    lo = int(idx[0])
+    return a[lo:lo + len(idx)] if np.array_equal(idx, np.arange(lo, lo + len(idx))) else None
 
 
 def tool_body(robot: RobotModel, model: mujoco.MjModel) -> str:
@@ -170,6 +186,22 @@ class FieldTrackingTask(control.Task):
         self._acts = robot.mj_actuator_ids
         v_max = V_MAX_M_S / placement.scale
         self._action_spec = specs.BoundedArray((placement.dim,), np.float64, -v_max, v_max, name="ee_velocity")
+        # check_action's fast path: the tightest scalar bounds of the spec
+        self._action_shape = self._action_spec.shape
+        self._v_lo, self._v_hi = float(np.max(self._action_spec.minimum)), float(np.min(self._action_spec.maximum))
+        # observation constants (the controller's own x = A^T (p - o) / s, so both see the same x)
+        self._At_s = np.ascontiguousarray(placement.axes.T / placement.scale)
+        self._origin = placement.origin.copy()
+        self._q_min, self._q_max = robot.q_min, robot.q_max
+        self._q_min_l, self._q_max_l = robot.q_min.tolist(), robot.q_max.tolist()
+        # A^T / s row by row, padded to 3 rows (a pose task does not use it)
+        self._At_s_l: list[float] = np.vstack([self._At_s, np.zeros((3, 3))])[:3].ravel().tolist()
+        self._d3 = placement.dim == 3
+        self._origin_l: list[float] = self._origin.tolist()
+        self._pose = placement.pose
+        self._n = robot.n
+        self._site = int(model.site(robot.mj_ee_site).id)
+        self._data: mujoco.MjData | None = None
 
     def _start_joints(self, x: np.ndarray) -> tuple[np.ndarray, float, float]:
         """Joints, shape (n,), with the tool on task point x, shape (d,) (a pose task: in its pose),
@@ -211,7 +243,8 @@ class FieldTrackingTask(control.Task):
     def before_step(self, action: np.ndarray, physics: ArmPhysics) -> None:
         """Check the action and write the commands; MuJoCo's computed torque (``dynamics="mujoco"``)
         first runs ``mj_step1`` for M(q) and the bias forces at this state (the ``mj_step`` that
-        follows recomputes them, identically)."""
+        follows recomputes them, identically). The hooks of dm_control's generic step;
+        ``sim.env.FieldEnvironment.step`` runs the same control without them."""
         v = self.check_action(action)
         model, data = physics.model.ptr, physics.data.ptr
         if self.controller.uses_mj_dynamics:
@@ -230,6 +263,11 @@ class FieldTrackingTask(control.Task):
     def check_action(self, action: np.ndarray) -> np.ndarray:
         """The action as float64, shape (d,), clipped to the spec's bounds; ``SimError`` for a
         wrong shape or a non-finite value (module docstring)."""
+        if type(action) is np.ndarray and action.dtype == _F64 and action.shape == self._action_shape:
+            vals = action.tolist()   # the fast path, on Python floats (numpy's reductions cost more here)
+            total = sum(vals)        # NaN if any value is NaN (min / max may skip one)
+            if total == total and self._v_lo <= min(vals) and max(vals) <= self._v_hi:
+                return action
         spec = self._action_spec
         try:
             v = np.asarray(action, dtype=np.float64)
@@ -253,7 +291,8 @@ class FieldTrackingTask(control.Task):
 
         - ``joint_positions`` (n,), ``joint_velocities`` (n,): arm joints in Pinocchio order;
         - ``ee_position`` (3,): the tool position in world (m, MuJoCo site), computed from the
-          observed joints (``after_step`` runs the kinematics: equal to Pinocchio FK up to round-off);
+          observed joints (``after_step``, or ``sim.env.FieldEnvironment.step``, runs the kinematics:
+          equal to Pinocchio FK up to round-off);
         - ``task_position`` (d,): the same point in task coordinates, x = A^T (p - o) / s (a pose
           task: the chart point of the tool's pose, ``sim.placement``);
         - ``goal`` (d,): the goal in task coordinates (after a ``GoalShift``);
@@ -261,17 +300,102 @@ class FieldTrackingTask(control.Task):
         - ``field_velocity`` (d,), only with a ``field``: the field's velocity at ``task_position``
           (goal-shifted), i.e. the action that ``sim.loop.execute`` would take.
         """
-        q = physics.joint_positions()
-        p = physics.ee_position()
-        x = self.placement.to_task(p, physics.ee_rotation()) if self.placement.pose else self.placement.to_task(p)
-        obs = collections.OrderedDict(
-            joint_positions=q, joint_velocities=physics.joint_velocities(), ee_position=p,
-            task_position=x, goal=self.goal_task.copy(),
-            joint_limit=((q < self.robot.q_min) | (q > self.robot.q_max)).astype(np.float64))
+        self.bind(physics.data.ptr)
+        return self.observe()
+
+    def bind(self, data: mujoco.MjData) -> None:
+        """Keep views of ``data``'s arrays that ``observe`` and ``reward_now`` read (each attribute
+        access of ``MjData`` builds a new view); cheap when ``data`` is already bound.
+
+        Parameters
+        ----------
+        data : mujoco.MjData
+            The raw MuJoCo data of the physics (``physics.data.ptr``).
+        """
+        if data is self._data:
+            return
+        self._data = data
+        self._qpos, self._qvel = data.qpos, data.qvel
+        self._qpos_arm, self._qvel_arm = _contiguous(data.qpos, self._qadr), _contiguous(data.qvel, self._dadr)
+        # readers of fresh copies of the arm's q and qdot: a slice view's copy, else fancy indexing
+        self._read_q = self._qpos_arm.copy if self._qpos_arm is not None else functools.partial(
+            data.qpos.__getitem__, self._qadr)
+        self._read_qdot = self._qvel_arm.copy if self._qvel_arm is not None else functools.partial(
+            data.qvel.__getitem__, self._dadr)
+        site = self._site
+        self._site_pos = data.site_xpos[site]
+        self._site_rot = data.site_xmat[site].reshape(3, 3)
+
+    def observe(self) -> collections.OrderedDict:
+        """``get_observation`` of the bound data (``bind``), as fresh arrays (a later step does not
+        change them); MuJoCo's kinematics must describe the current joints.
+
+        Returns
+        -------
+        collections.OrderedDict
+            ``OBSERVATION_KEYS`` (plus ``field_velocity`` with a field) to float64 arrays.
+        """
+        return self.outputs()[1]
+
+    def reward_now(self) -> float:
+        """``get_reward`` of the bound data (``bind``), from the tool site (see ``_goal_reward``).
+
+        Returns
+        -------
+        float
+            The reward in [0, 1] (NaN for a non-finite tool position).
+        """
+        px, py, pz = self._site_pos.tolist()
+        return self._goal_reward(px, py, pz)
+
+    def outputs(self) -> tuple[float, collections.OrderedDict]:
+        """``reward_now()`` and ``observe()`` in one pass (what a control step returns).
+
+        Returns
+        -------
+        reward : float
+        observation : collections.OrderedDict
+        """
+        assert self._data is not None, "bind(data) first"
+        q, qdot, p = self._read_q(), self._read_qdot(), self._site_pos.copy()
+        px, py, pz = p.tolist()
+        if self._pose:
+            x = self.placement.to_task(p, self._site_rot.copy())
+        else:   # x = A^T (p - o) / s on Python floats (numpy's call overhead dominates at d <= 3)
+            ox, oy, oz = self._origin_l
+            dx, dy, dz = px - ox, py - oy, pz - oz
+            a0, a1, a2, b0, b1, b2, c0, c1, c2 = self._At_s_l
+            if self._d3:
+                x = np.array([a0 * dx + a1 * dy + a2 * dz, b0 * dx + b1 * dy + b2 * dz, c0 * dx + c1 * dy + c2 * dz])
+            else:
+                x = np.array([a0 * dx + a1 * dy + a2 * dz, b0 * dx + b1 * dy + b2 * dz])
+        ql = q.tolist()
+        if all(map(operator.le, self._q_min_l, ql)) and all(map(operator.le, ql, self._q_max_l)):
+            limit = np.zeros(self._n)   # the common case, checked on Python floats (a NaN fails it)
+        else:
+            limit = np.logical_or(q < self._q_min, q > self._q_max).astype(np.float64)
+        obs = collections.OrderedDict()   # item by item: cheaper than from keywords or pairs
+        obs["joint_positions"] = q
+        obs["joint_velocities"] = qdot
+        obs["ee_position"] = p
+        obs["task_position"] = x
+        obs["goal"] = self.goal_task.copy()
+        obs["joint_limit"] = limit
         if self.field is not None:
-            v = self.field(x - self._shift, physics.data.time) if self._timed else self.field(x - self._shift)
+            v = self.field(x - self._shift, self._data.time) if self._timed else self.field(x - self._shift)
             obs["field_velocity"] = np.array(v, dtype=np.float64)
-        return obs
+        return self._goal_reward(px, py, pz), obs
+
+    def _goal_reward(self, px: float, py: float, pz: float) -> float:
+        """The reward of the tool at world point (px, py, pz), m: 1 within ``GOAL_TOLERANCE_M`` of
+        the (shifted) goal, else exp(-((dist - tol) / margin)^2 scale^2 / 2), 0.1 at
+        ``REWARD_MARGIN_M`` beyond the tolerance (``dm_control.utils.rewards.tolerance`` with its
+        Gaussian sigmoid, on Python floats)."""
+        gx, gy, gz = self.goal_world.tolist()
+        dist = math.sqrt((px - gx) ** 2 + (py - gy) ** 2 + (pz - gz) ** 2)
+        if dist <= GOAL_TOLERANCE_M:
+            return 1.0
+        return math.exp(-0.5 * ((dist - GOAL_TOLERANCE_M) / REWARD_MARGIN_M * _REWARD_SCALE) ** 2)
 
     def observation_spec(self, physics: ArmPhysics) -> collections.OrderedDict:
         n, d = self.robot.n, self.placement.dim
@@ -287,8 +411,9 @@ class FieldTrackingTask(control.Task):
         return out
 
     def get_reward(self, physics: ArmPhysics) -> float:
-        dist = float(np.linalg.norm(physics.ee_position() - self.goal_world))
-        return float(rewards.tolerance(dist, bounds=(0.0, GOAL_TOLERANCE_M), margin=0.05))
+        """The reward at the current state (``reward_now``)."""
+        self.bind(physics.data.ptr)
+        return self.reward_now()
 
     # ---------------------------------------------------------------- restorable state
     def get_state(self, physics: ArmPhysics) -> np.ndarray:
@@ -438,8 +563,9 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                      actuation: str | None = None, perturbations: Sequence[Perturbation] = (),
                      rotation_ref: np.ndarray | None = None, gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None,
-                     dynamics: str = "mujoco", clearance: Clearance | None = None) -> control.Environment:
-    """A dm_control Environment of ``robot`` following task velocities (see the module docstring).
+                     dynamics: str = "mujoco", clearance: Clearance | None = None) -> FieldEnvironment:
+    """A dm_control Environment of ``robot`` following task velocities (see the module docstring):
+    a ``sim.env.FieldEnvironment``, whose ``step`` is the lean one of ``sim.loop``.
 
     One call from names::
 
@@ -490,5 +616,6 @@ def make_environment(robot: str | RobotModel, placement: Placement | None = None
                              field=None if learner_field is None else learner_field.single_point_evaluator(),
                              timed=learner_field is not None and is_time_varying(learner_field),
                              dynamics=dynamics, clearance=clearance)
-    return control.Environment(physics, task, time_limit=duration_s, control_timestep=control_dt,
-                               legacy_step=False)
+    from sim.env import FieldEnvironment  # here: sim.env imports this module
+
+    return FieldEnvironment(physics, task, time_limit=duration_s, control_timestep=control_dt, legacy_step=False)

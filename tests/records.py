@@ -6,6 +6,8 @@ from typing import Any
 
 #: keys of wall-clock numbers, which differ from run to run
 TIMINGS = {"cell_s", "train_time_s", "step_time_us", "run_s", "run_cpu_s", "control_step_us", "realtime_factor"}
+#: keys of how a run went rather than what it computed: its tries and the node (host) that ran it
+HOST_FIELDS = {"attempts", "node"}
 
 
 def numbers(obj: Any, prefix: str = "") -> dict[str, float]:
@@ -18,3 +20,13 @@ def numbers(obj: Any, prefix: str = "") -> dict[str, float]:
     if isinstance(obj, bool) or obj is None:
         return {prefix: float(bool(obj))} if isinstance(obj, bool) else {}
     return {prefix: float(obj)} if isinstance(obj, (int, float)) else {}
+
+
+def results(obj: Any) -> Any:
+    """A nested record without its ``TIMINGS`` and ``HOST_FIELDS`` (at any depth), for an exact
+    comparison: two runs of the same spec give equal results, bit for bit."""
+    if isinstance(obj, dict):
+        return {k: results(v) for k, v in obj.items() if k not in TIMINGS | HOST_FIELDS}
+    if isinstance(obj, list):
+        return [results(v) for v in obj]
+    return obj

@@ -258,6 +258,41 @@ def test_bad_executor_options_are_one_line_exit_2(argv: list[str], message: str,
     assert not (tmp_path / "r.json").exists()
 
 
+@pytest.mark.parametrize("mode, error, stderr, message", [
+    (None, RuntimeError("Failed to connect to Ray cluster at 10.0.0.5:6379"),
+     "gcs_client.cc:210: Failed to get cluster ID: Unauthenticated: RPC error: InvalidAuthToken: missing\n",
+     "it wants token authentication (set RAY_AUTH_MODE=token, with the cluster's token in ~/.ray/auth_token "
+     "or $RAY_AUTH_TOKEN)"),
+    ("token", RuntimeError("Failed to connect to Ray cluster at 10.0.0.5:6379"), "InvalidAuthToken\n",
+     "it refused this process's Ray token (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token)"),
+    (None, ConnectionError("no GCS there\nsecond line"), "", "no GCS there"),
+    (None, ValueError(), "", "ValueError"),
+])
+def test_a_failed_ray_join_is_one_line(mode: str | None, error: Exception, stderr: str, message: str,
+                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """Why ``ray.init`` could not join, in one line, from its exception and Ray's held-back stderr."""
+    from lfd.bench.executor import _init_error
+
+    if mode is None:
+        monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    else:
+        monkeypatch.setenv("RAY_AUTH_MODE", mode)
+    assert _init_error(error, stderr) == message
+
+
+def test_ray_stderr_is_held_back_at_the_file_descriptor(capfd: pytest.CaptureFixture[str]) -> None:
+    """What native code writes on fd 2 while joining a cluster is held, and fd 2 is restored after."""
+    import os
+
+    from lfd.bench.executor import _HeldStderr
+
+    held = _HeldStderr()
+    with held:
+        os.write(2, b"[C++] a warning a second\n")
+    os.write(2, b"after\n")
+    assert held.text == "[C++] a warning a second\n" and capfd.readouterr().err == "after\n"
+
+
 def test_the_core_does_not_import_ray() -> None:
     """``import lfd`` and the bench runner leave Ray alone (it is imported by the Ray executor only)."""
     import subprocess

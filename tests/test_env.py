@@ -250,3 +250,135 @@ def test_gymnasium_through_shimmy() -> None:
     assert isinstance(env.action_space, gymnasium.spaces.Box) and env.action_space.shape == (2,)
     obs, reward, terminated, truncated, _ = env.step(obs["field_velocity"].astype(np.float32))
     assert 0.0 <= reward <= 1.0 and not terminated
+
+
+# ---------------------------------------------------------------- the lean step (sim.env.FieldEnvironment)
+LEAN_TOL = 1e-9   # lean step vs sim.loop.execute, and vs dm_control's generic step: round-off (see EXECUTE_TOL_M)
+
+
+def _env_rollout(env, f) -> tuple[np.ndarray, np.ndarray, list]:
+    """Tool positions (K+1, 3), joints (K+1, n) and the time steps of one episode of ``env`` with policy f(x)."""
+    ts = env.reset()
+    steps = [ts]
+    while not ts.last():
+        ts = env.step(f(ts.observation["task_position"]))
+        steps.append(ts)
+    return (np.array([s.observation["ee_position"] for s in steps]),
+            np.array([s.observation["joint_positions"] for s in steps]), steps)
+
+
+@pytest.mark.parametrize("name,actuation,perts", [
+    ("planar", "torque", ()),
+    ("panda", "torque", (sim.Push(force_n=20.0, duration_s=0.2, start_s=0.1, seed=1),
+                         sim.JointVelocityNoise(std_rad_s=0.01, seed=2))),
+    ("panda", "position", (sim.Push(force_n=20.0, duration_s=0.2, start_s=0.1, seed=1),)),
+], ids=["planar", "panda-push-noise", "panda-servo-push"])
+def test_lean_step_rollout_equals_the_lean_loop(name: str, actuation: str, perts: tuple) -> None:
+    """The environment's own step (MuJoCo's tool site, mj_step1 / mj_step2, the task's perturbations)
+    and ``sim.loop.execute`` run the same physics and control: the same tool path and joints."""
+    from sim.env import FieldEnvironment
+
+    field = sink_field(demos())
+    env = sim.make_environment(load_robot(name, actuation=actuation), demos=demos(), duration_s=0.6,
+                               perturbations=perts)
+    assert isinstance(env, FieldEnvironment) and env.lean
+    ro = execute(env, field.single_point_evaluator())
+    ee, q, steps = _env_rollout(env, field.single_point_evaluator())
+    assert ee.shape == ro.ee.shape and len(steps) == env.task.n_steps + 1
+    assert np.allclose(ee, ro.ee, rtol=0, atol=LEAN_TOL), np.abs(ee - ro.ee).max()
+    assert np.allclose(q, ro.q, rtol=0, atol=1e3 * LEAN_TOL), np.abs(q - ro.q).max()
+    assert np.linalg.norm(ro.ee[-1] - ro.ee[0]) > 0.01      # it went somewhere
+
+
+@pytest.mark.parametrize("name", ["planar", "panda"])
+def test_lean_step_equals_dm_controls_generic_step(name: str) -> None:
+    """Step for step, the lean ``step`` returns what ``control.Environment.step`` (task hooks,
+    ``Physics.step``) returns for the same actions: step types, discounts, rewards, observations."""
+    from dm_control.rl import control
+
+    field = sink_field(demos())
+    lean, generic = (environment(name, duration_s=0.2, learner_field=field) for _ in range(2))
+    a, b = lean.reset(), generic.reset()
+    n = 0
+    while True:
+        assert a.step_type == b.step_type and a.discount == b.discount
+        assert (a.reward is None) == (b.reward is None)
+        if a.reward is not None:
+            assert a.reward == pytest.approx(b.reward, rel=0, abs=1e-12)
+        assert list(a.observation) == list(b.observation)
+        for key in a.observation:
+            x, y = a.observation[key], b.observation[key]
+            assert x.dtype == y.dtype == np.float64 and x.shape == y.shape
+            assert np.allclose(x, y, rtol=0, atol=LEAN_TOL), (key, np.abs(x - y).max())
+        if a.last():
+            break
+        v = a.observation["field_velocity"]
+        a, b = lean.step(v), control.Environment.step(generic, v)
+        n += 1
+    assert n == lean.task.n_steps
+    spec = lean.observation_spec()
+    for key, value in a.observation.items():
+        spec[key].validate(value)
+    assert lean.step(v).first()                              # a step after LAST resets, as dm_control's does
+
+
+def test_lean_step_keeps_earlier_observations_and_counts_like_dm_control() -> None:
+    env = environment("panda", duration_s=0.05, learner_field=sink_field(demos()))
+    ts = env.reset()
+    kept, frozen = [ts.observation], [{k: v.copy() for k, v in ts.observation.items()}]
+    while not ts.last():
+        ts = env.step(ts.observation["field_velocity"])
+        kept.append(ts.observation)
+        frozen.append({k: v.copy() for k, v in ts.observation.items()})
+    assert len(kept) == 26                                   # 25 steps of 2 ms, then LAST
+    for obs, copy in zip(kept, frozen):                      # later steps did not write into earlier observations
+        for key in obs:
+            np.testing.assert_array_equal(obs[key], copy[key])
+    for earlier, later in zip(kept[:-1], kept[1:]):          # fresh arrays every step, none shared
+        for key in earlier:
+            assert not np.shares_memory(earlier[key], later[key])
+    assert np.abs(kept[-1]["ee_position"] - kept[0]["ee_position"]).max() > 1e-4   # and they did change
+    kept[1]["joint_positions"][:] = 0.0                      # writing into an observation leaves the physics alone
+    assert np.abs(env.physics.data.qpos[:7]).max() > 0.1
+
+
+def test_lean_step_reward_and_physics_errors() -> None:
+    from dm_control.rl import control
+    from dm_control.utils import rewards
+
+    env = environment("panda", duration_s=0.1)
+    env.reset()
+    task = env.task
+    for dist in (0.0, 0.004, 0.0051, 0.02, 0.05, 0.3):      # the reward is dm_control's tolerance
+        p = task.goal_world + dist * np.array([0.6, 0.0, 0.8])
+        expected = rewards.tolerance(float(np.linalg.norm(p - task.goal_world)), bounds=(0.0, 0.005), margin=0.05)
+        assert task._goal_reward(*p.tolist()) == pytest.approx(expected, rel=1e-12, abs=1e-15)
+    env.step(np.zeros(2))
+    env.physics.data.qvel[0] = 1e11                          # MuJoCo warns (bad qvel) and resets its state
+    with pytest.raises(control.PhysicsError, match="mjWARN_BADQVEL"):
+        env.step(np.zeros(2))
+    env.reset()
+    env.physics.data.qvel[0] = 1e11
+    with env.physics.suppress_physics_errors():              # as dm_control: logged, not raised
+        ts = env.step(np.zeros(2))
+    assert ts.mid()
+
+
+def test_a_task_that_overrides_a_hook_gets_dm_controls_step() -> None:
+    from sim.env import FieldEnvironment
+    from sim.task import FieldTrackingTask
+
+    class Tagged(FieldTrackingTask):
+        def get_observation(self, physics):
+            obs = super().get_observation(physics)
+            obs["tag"] = np.ones(1)
+            return obs
+
+    base = environment("planar")
+    task = base.task
+    task.__class__ = Tagged
+    env = FieldEnvironment(base.physics, task, time_limit=EPISODE_S, control_timestep=task.control_dt)
+    assert not env.lean
+    ts = env.reset()
+    ts = env.step(np.zeros(2))
+    assert "tag" in ts.observation and ts.mid()

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from torchdiffeq import odeint
 
 import lfd
 from lfd.demos import DemoSet
@@ -19,12 +20,13 @@ from lfd.learners.node import (
     NodeField,
     NodeLearner,
     NodeMLP,
+    ScaledMLP,
     SegmentDynamics,
     Segments,
-    _ScaledMLP,
     stratified_sample,
     uniform_grid,
 )
+from lfd.learners.node_kernel import RK4Segments, tanh_as_sigmoid
 from lfd.normalization import Normalization
 
 # A short training: 300 iterations on the default spiral, 100 samples a demo, segments 2 -> 10.
@@ -103,7 +105,7 @@ def test_save_load_round_trip_is_bit_identical(field: lfd.VelocityField, tmp_pat
 
 def test_config_is_json_and_recorded(field: lfd.VelocityField) -> None:
     cfg = json.loads(json.dumps(field.config))
-    assert cfg["hidden"] == [64, 64] and cfg["solver"] == "rk4" and cfg["iterations"] == QUICK["iterations"]
+    assert cfg["hidden"] == [32, 32] and cfg["solver"] == "rk4" and cfg["iterations"] == QUICK["iterations"]
     assert NodeLearner.make_config(**cfg) == NodeConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
 
 
@@ -146,7 +148,7 @@ def test_fused_mlp_gradient(activation: str) -> None:
     c = torch.randn(1, 3, dtype=torch.float64, requires_grad=True)
     params = [p.detach().clone().requires_grad_()
               for m in module.linears() for p in (m.weight.t().contiguous(), m.bias)]
-    assert torch.autograd.gradcheck(lambda x, c, *ps: _ScaledMLP.apply(x, h, c, activation, *ps),
+    assert torch.autograd.gradcheck(lambda x, c, *ps: ScaledMLP.apply(x, h, c, activation, *ps),
                                     (x, c, *params))
     # the fused dynamics equal the plain module path, values and parameter gradients
     fused, plain = SegmentDynamics(module, fused=True), SegmentDynamics(module, fused=False)
@@ -158,6 +160,31 @@ def test_fused_mlp_gradient(activation: str) -> None:
     g2 = torch.autograd.grad(y2.square().sum(), list(module.parameters()))
     for a, b in zip(g1, g2):
         torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize(("activation", "hidden", "substeps"),
+                         [("tanh", (6, 5), 1), ("tanh", (7,), 3), ("tanh", (4, 4, 4), 2),
+                          ("softplus", (6, 5), 1), ("relu", (5,), 2), ("silu", (5, 4), 1), ("elu", (4, 6), 1)])
+def test_fused_rk4_segments_equal_torchdiffeq(activation: str, hidden: tuple[int, ...], substeps: int) -> None:
+    """The one-node RK4 integration (tanh written as logistic layers) and its hand-written adjoint
+    give torchdiffeq's rk4 states and the parameter gradients of autograd through it."""
+    torch.manual_seed(1)
+    module = NodeMLP(3, hidden, activation, goal_equilibrium=True).double()
+    dyn = SegmentDynamics(module, fused=True)
+    x0 = torch.randn(9, 3, dtype=torch.float64)
+    h = 0.05 + 0.3 * torch.rand(9, 1, dtype=torch.float64)
+    target = torch.randn(7, 9, 3, dtype=torch.float64)
+    dyn.begin(h / substeps)
+    params, act = (tanh_as_sigmoid(dyn.params), "sigmoid") if activation == "tanh" else (dyn.params, activation)
+    fused = RK4Segments.apply(x0, h / substeps, dyn.offset, substeps, 7, act, *params)
+    g_fused = torch.autograd.grad((fused - target).square().sum(), list(module.parameters()))
+    dyn.begin(h)
+    options = {"step_size": 1.0 / substeps} if substeps > 1 else {}
+    ref = odeint(dyn, x0, torch.arange(7, dtype=torch.float64), method="rk4", options=options)
+    g_ref = torch.autograd.grad((ref - target).square().sum(), list(module.parameters()))
+    torch.testing.assert_close(fused, ref, rtol=1e-12, atol=1e-12)
+    for a, b in zip(g_fused, g_ref):
+        torch.testing.assert_close(a, b, rtol=1e-9, atol=1e-12)
 
 
 def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -431,7 +431,7 @@ def test_local_pool_retries_a_killed_run_and_gives_up_after_the_limit(tmp_path: 
     items = [(str(tmp_path), i, m) for i, m in enumerate(modes)]
     done: dict[int, tuple[int, int]] = {}
     failed: dict[int, Failure] = {}
-    run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n: done.__setitem__(i, (r, n)),
+    run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n, w: done.__setitem__(i, (r, n)),
                  paths=(TESTS,), on_failed=failed.__setitem__)
     assert done == {0: (0, 1), 1: (10, 2), 2: (20, 1), 4: (40, 1)}
     assert failed == {3: Failure("the worker process was killed by SIGKILL", 3)}
@@ -442,9 +442,21 @@ def test_without_a_failure_callback_a_lost_run_is_a_worker_error_after_the_other
     done: dict[int, Any] = {}
     with pytest.raises(WorkerError, match=r"^1 run\(s\) lost: a worker process died under each of them 2 times "
                                           r"\(the worker process was killed by SIGKILL\)$"):
-        run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n: done.__setitem__(i, r), paths=(TESTS,),
+        run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n, w: done.__setitem__(i, r), paths=(TESTS,),
                      max_attempts=2)
     assert done == {1: 10}
+
+
+def test_only_the_runs_of_the_dead_worker_count_a_try() -> None:
+    """Of a broken pool's lost runs, those on the worker that died (not of the pool's SIGTERM) count a
+    try; a worker that dies holding none (at start, or idle) costs nobody a try."""
+    from lfd.bench.executor import _blamed
+
+    started = [0, 101, 102, 0]           # run -> pid of the worker that took it (0: still queued)
+    assert _blamed([1, 2, 3], started, {101: -signal.SIGKILL, 102: -signal.SIGTERM}) == [1]
+    assert _blamed([1, 2, 3], started, {101: -signal.SIGTERM, 102: -signal.SIGTERM, 103: -signal.SIGKILL}) == []
+    assert _blamed([0, 3], started, {101: -signal.SIGKILL}) == []
+    assert _blamed([1, 2], started, {102: -signal.SIGTERM}) == [1]      # an exit code unknown: blamed
 
 
 @pytest.mark.slow
@@ -453,7 +465,7 @@ def test_ray_retries_a_killed_run(tmp_path: Path) -> None:
     items = [(str(tmp_path), 0, "once"), (str(tmp_path), 1, "fine"), (str(tmp_path), 2, "always")]
     done: dict[int, tuple[int, int]] = {}
     failed: dict[int, Failure] = {}
-    run_parallel(die_on_first_try, items, 2, "ray", on_done=lambda i, r, n: done.__setitem__(i, (r, n)),
+    run_parallel(die_on_first_try, items, 2, "ray", on_done=lambda i, r, n, w: done.__setitem__(i, (r, n)),
                  paths=(TESTS,), on_failed=failed.__setitem__, max_attempts=2)
     assert done == {0: (0, 2), 1: (10, 1)}
     assert list(failed) == [2] and failed[2].attempts == 2 and "WorkerCrashedError" in failed[2].reason

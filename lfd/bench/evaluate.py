@@ -78,7 +78,7 @@ class FieldModel:
         self.learner = field.learner
         self.config = dict(field.config)
         self.history = {k: v for k, v in field.history.items()
-                        if k in ("iterations", "best_loss", "interrupted", "epochs")}
+                        if k in ("iterations", "best_loss", "interrupted", "epochs", "train_cpu_s")}
         self.train_time_s = float(field.history.get("train_time_s", float("nan")))
         self.integrators: dict[str, str] = {}
 

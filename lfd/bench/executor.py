@@ -9,13 +9,24 @@ Executors (``EXECUTORS``; both through ``run_parallel``, whose callbacks run in 
   it: the lost cells run again on a new pool, each up to ``MAX_ATTEMPTS`` times.
 * ``ray``: Ray tasks (one CPU, one torch thread each). Without an address Ray starts a local
   instance with ``workers`` CPUs (no dashboard); with ``address`` (``HOST:PORT``, ``ray://HOST:PORT``
-  or ``auto``; default ``$RAY_ADDRESS``) it joins that cluster. A task returns the record and the
-  NPZ bytes and THIS process writes the files, so the cache needs no shared file system. A task
-  whose worker Ray reports lost is submitted again, up to ``MAX_ATTEMPTS`` times. Ray is
-  imported only here (``pip install 'lfd-arm[ray]'``); ``ray.shutdown()`` runs on every exit,
-  Ctrl-C and SIGTERM included (``ray.init``'s own SIGTERM handler is replaced by the caller's
-  again), after cancelling the cells still running. A local instance gets a watchdog process
-  that ends its processes when this one dies (kill -9 included).
+  or ``auto``; default ``$RAY_ADDRESS``) it joins that cluster, and the tasks run on any of its
+  nodes. A task returns the record and the NPZ bytes and THIS process writes the files, so the
+  cache needs no shared file system. A task whose worker Ray reports lost (its process killed, its
+  node gone) is submitted again, up to ``MAX_ATTEMPTS`` times. Ray is imported only here
+  (``pip install 'lfd-arm[ray]'``); ``ray.shutdown()`` runs on every exit, Ctrl-C and SIGTERM
+  included (``ray.init``'s own SIGTERM handler is replaced by the caller's again). The tasks still
+  running are not cancelled first: ``ray.cancel`` racing a task's completion aborts the driver
+  inside Ray ("Check failed: ... submissible_tasks_"); ``ray.shutdown`` ends a local instance
+  with its workers, and a cluster's raylets end the tasks of a driver that has left. A local
+  instance gets a watchdog process that ends its processes when this one dies (kill -9 included).
+
+Each finished item comes with where it ran (``on_done``'s ``node``: ``{"host"}`` on the local
+pool; ``{"host", "ip", "ray_node_id"}`` of the Ray node), for the records' ``node`` field: a
+host field, not a result, so comparisons of results leave it out (with the timings).
+
+Joining a cluster started by ``ray start --head`` on a machine with a Ray token
+(``~/.ray/auth_token``: Ray then turns token authentication on) needs ``RAY_AUTH_MODE=token`` here
+and the same token; without it the join fails after Ray's retries with one line saying so.
 
 Used by the LASA benchmark (``lfd.bench.runner``) and ``scripts/sweep_arm.py``.
 """
@@ -30,13 +41,16 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
+import traceback
 import warnings
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import torch
@@ -49,6 +63,10 @@ MAX_ATTEMPTS = 3           # tries of a run whose worker process dies, before it
 EXIT_ORPHANED = 129        # a pool worker's exit code when its parent has gone (128 + SIGHUP)
 _ADDRESS = re.compile(r"^(ray://)?(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9][A-Za-z0-9_.-]*):(\d{1,5})$")
 _STARTED: Any = None   # in a pool worker: the shared array of the pid that runs each item
+_TOKEN_HINT = "set RAY_AUTH_MODE=token, with the cluster's token in ~/.ray/auth_token or $RAY_AUTH_TOKEN"
+
+#: ``on_done(index, result, attempts, node)`` of ``run_parallel``
+OnDone = Callable[[int, Any, int, dict[str, str]], None]
 
 
 def check_executor(executor: str, address: str | None = None) -> str | None:
@@ -86,10 +104,17 @@ def check_executor(executor: str, address: str | None = None) -> str | None:
 def _init_worker(paths: tuple[str, ...], alive: Any, started: Any) -> None:
     """Set up a pool worker: SIGINT ignored (the parent stops the pool), one torch thread, the
     import ``paths`` (before any task is unpickled: a forkserver may be older than them), the
-    shared ``started`` array, warnings on one line, and a thread that ends the process when the
-    parent dies."""
+    shared ``started`` array, warnings on one line, tqdm's lock a thread lock, and a thread that
+    ends the process when the parent dies.
+
+    tqdm's default lock holds a named semaphore in a forkserver or spawn worker, which a killed
+    worker cannot unlink: the parent's resource tracker would then warn of "leaked semaphore
+    objects" at exit (the workers draw no bars, so a lock between processes serves nothing)."""
     global _STARTED
+    from tqdm import tqdm
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    tqdm.set_lock(threading.RLock())
     torch.set_num_threads(1)
     for p in paths:
         if p not in sys.path:
@@ -147,8 +172,12 @@ class WorkerError(LfdError):
 def start_ray(workers: int, address: str | None, paths: tuple[str, ...] = ()) -> Any:
     """``ray.init``: join the cluster at ``address``, else start a local instance with ``workers``
     CPUs and no dashboard; the workers import this same ``lfd`` (its directory, and ``paths``, on
-    their PYTHONPATH). Returns the ``ray`` module; ``ConfigError`` (one line) when Ray is missing or
-    unreachable. Call ``ray.shutdown()`` when done."""
+    their PYTHONPATH: on a cluster of several machines, the same checkout at the same path on each).
+
+    Returns the ``ray`` module; ``ConfigError`` (one line) when Ray is missing or the cluster cannot
+    be joined (a cluster that wants a token this process does not send says so). What Ray's C++
+    code writes on stderr while joining is held back, and shown only when the join succeeds. Call
+    ``ray.shutdown()`` when done."""
     from lfd.errors import ConfigError
 
     try:
@@ -160,9 +189,12 @@ def start_ray(workers: int, address: str | None, paths: tuple[str, ...] = ()) ->
     runtime_env = {"env_vars": {"PYTHONPATH": path, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}}
     kwargs: dict[str, Any] = dict(runtime_env=runtime_env, log_to_driver=False, logging_level=logging.ERROR)
     sigterm = signal.getsignal(signal.SIGTERM)
+    held = _HeldStderr()
     try:
         if address:
-            ray.init(address=address, **kwargs)
+            with held:   # an unauthenticated join: a warning a second for ~20 s before the error
+                ray.init(address=address, **kwargs)
+            _write_stderr(held.text)
         else:
             ray.init(address="local", num_cpus=workers, include_dashboard=False, **kwargs)
     except KeyboardInterrupt:
@@ -176,16 +208,91 @@ def start_ray(workers: int, address: str | None, paths: tuple[str, ...] = ()) ->
     except Exception as e:  # noqa: BLE001  (ConnectionError, RuntimeError, ValueError, ...)
         ray.shutdown()
         where = f"the Ray cluster at {address}" if address else "a local Ray instance"
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise ConfigError(f"cannot start or join {where}: {first}") from None
+        raise ConfigError(f"cannot start or join {where}: {_init_error(e, held.text)}") from None
     finally:   # ray.init makes SIGTERM exit with code 15; keep the caller's handler (Ctrl-C, exit 130)
         if sigterm is not None and threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, sigterm)
     return ray
 
 
+def _init_error(error: Exception, stderr: str) -> str:
+    """One line on why ``ray.init`` failed, from its exception and what Ray wrote on stderr."""
+    auth = "AuthenticationError" in type(error).__name__ or "InvalidAuthToken" in stderr + str(error)
+    if auth and os.environ.get("RAY_AUTH_MODE", "").strip().lower() != "token":
+        return f"it wants token authentication ({_TOKEN_HINT})"
+    if auth:
+        return "it refused this process's Ray token (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token)"
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
+
+
+class _HeldStderr:
+    """File descriptor 2 sent to a temporary file inside the ``with`` block (Ray's C++ code writes
+    there, past ``sys.stderr``); ``text`` is what was written, once the block has ended."""
+
+    def __init__(self) -> None:
+        self.text = ""
+        self._saved = -1
+        self._file: Any = None
+
+    def __enter__(self) -> _HeldStderr:
+        try:
+            sys.stderr.flush()
+            self._file = tempfile.TemporaryFile()
+            self._saved = os.dup(2)
+            os.dup2(self._file.fileno(), 2)
+        except (OSError, ValueError):   # no fd 2 to redirect: leave stderr alone
+            self._restore()
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self._restore()
+
+    def _restore(self) -> None:
+        if self._saved >= 0:
+            try:
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
+            os.dup2(self._saved, 2)
+            os.close(self._saved)
+            self._saved = -1
+        if self._file is not None:
+            self._file.seek(0)
+            self.text = self._file.read().decode(errors="replace")
+            self._file.close()
+            self._file = None
+
+
+def _write_stderr(text: str) -> None:
+    if text:
+        try:
+            sys.stderr.write(text)
+        except (OSError, ValueError):
+            pass
+
+
+def local_node() -> dict[str, str]:
+    """Where an item of the local pool (or of this process) ran: ``{"host": hostname}``."""
+    return {"host": socket.gethostname()}
+
+
+def ray_node() -> dict[str, str]:
+    """Where this Ray task runs: ``{"host", "ip", "ray_node_id"}`` of its node (in a Ray worker)."""
+    import ray
+
+    return {"host": socket.gethostname(), "ip": str(ray.util.get_node_ip_address()),
+            "ray_node_id": str(ray.get_runtime_context().get_node_id())}
+
+
+def _ray_task(fn: Callable[[Any], Any], item: Any) -> tuple[Any, dict[str, str]]:
+    """A Ray task: ``fn(item)`` and the node that ran it (``ray_node``)."""
+    return fn(item), ray_node()
+
+
 def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, executor: str = "local",
-                 address: str | None = None, on_done: Callable[[int, Any, int], None] | None = None,
+                 address: str | None = None, on_done: OnDone | None = None,
                  paths: tuple[str, ...] = (), on_failed: Callable[[int, Failure], None] | None = None,
                  max_attempts: int = MAX_ATTEMPTS) -> None:
     """Call the module-level function ``fn`` on every item, ``workers`` at a time, on ``executor``.
@@ -203,8 +310,9 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, execu
     address : str, optional
         The Ray cluster to join (``ray`` only).
     on_done : callable, optional
-        ``on_done(index, result, attempts)``, called in THIS process as each item finishes, in any
-        order; ``attempts`` counts the tries it took (1 unless a worker died under it).
+        ``on_done(index, result, attempts, node)``, called in THIS process as each item finishes,
+        in any order; ``attempts`` counts the tries it took (1 unless a worker died under it) and
+        ``node`` says where the last one ran (``local_node``; Ray: ``ray_node``).
     paths : tuple of str
         Directories the workers need on their import path.
     on_failed : callable, optional
@@ -213,18 +321,19 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, execu
         once every other item is done.
     max_attempts : int
         Tries of an item whose worker process dies (kill -9, out of memory, a crash in native
-        code). Local pool: the pool is replaced and the lost items submitted again; an item that
-        was running beside the one that died is tried again at no cost to its count when the dead
-        worker can be told apart (it did not die of the pool's own SIGTERM). Ray: the task is
-        submitted again when Ray reports its worker lost.
+        code). Local pool: the pool is replaced and the lost items submitted again; only the items
+        that were running on the worker that died count a try (``_blamed``: the others ended by the
+        pool's own SIGTERM); a worker that dies holding no item costs nobody a try, unless pools
+        keep dying so ``max_attempts`` times in a row with nothing done. Ray: the task is submitted
+        again when Ray reports its worker lost.
 
     Notes
     -----
     Ctrl-C or an exception (of ``fn`` in a worker, or of a callback) stops the workers (local:
-    terminated; Ray: tasks cancelled, then ``ray.shutdown()``) and propagates. Pool workers end
+    terminated; Ray: ``ray.shutdown()``, module docstring) and propagates. Pool workers end
     on their own when this process dies, kill -9 included.
     """
-    done = on_done or (lambda i, r, n: None)
+    done = on_done or (lambda i, r, n, w: None)
     lost: list[tuple[int, Failure]] = []
     failed = on_failed or (lambda i, f: lost.append((i, f)))
     if executor == "ray":
@@ -233,8 +342,9 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, execu
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
+            here = local_node()
             for i, item in enumerate(items):
-                done(i, fn(item), 1)
+                done(i, fn(item), 1, here)
         finally:
             torch.set_num_threads(threads)
     else:
@@ -257,16 +367,18 @@ def _death(exitcode: int | None) -> str:
 
 
 def _run_local(fn: Callable[[Any], Any], items: list[Any], workers: int, paths: tuple[str, ...],
-               done: Callable[[int, Any, int], None], failed: Callable[[int, Failure], None],
-               max_attempts: int) -> None:
+               done: OnDone, failed: Callable[[int, Failure], None], max_attempts: int) -> None:
     """``run_parallel`` on local process pools: a new pool after each worker death."""
+    here = local_node()
     ctx = _context()
     started = ctx.RawArray("q", max(len(items), 1))   # item -> pid of the worker that took it
     alive_r, alive_w = ctx.Pipe(duplex=False)          # alive_w stays here: its close ends the workers
     deaths = [0] * len(items)
     queue = list(range(len(items)))
+    idle_deaths = 0   # pools broken in a row by a worker that held no item (dying at start, or idle)
     try:
         while queue:
+            progress = False
             pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
                                        initializer=_init_worker, initargs=(tuple(paths), alive_r, started))
             procs: dict[int, Any] = {}
@@ -285,7 +397,8 @@ def _run_local(fn: Callable[[Any], Any], items: list[Any], workers: int, paths: 
                         if isinstance(fut.exception(), BrokenProcessPool):
                             broken.append(i)
                         else:
-                            done(i, fut.result(), deaths[i] + 1)
+                            done(i, fut.result(), deaths[i] + 1, here)
+                            progress = True
             except BaseException:
                 _kill_pool(pool)
                 raise
@@ -293,14 +406,17 @@ def _run_local(fn: Callable[[Any], Any], items: list[Any], workers: int, paths: 
             queue = []
             if not broken:
                 continue
-            ran = [i for i in broken if started[i]]
-            # the pool SIGTERMs its other workers when one dies: the dead one is any other end
-            culprits = [i for i in ran if getattr(procs.get(started[i]), "exitcode", None) != -signal.SIGTERM]
+            exitcodes = {pid: getattr(proc, "exitcode", None) for pid, proc in procs.items()}
+            blamed = _blamed(broken, started, exitcodes)
+            idle_deaths = 0 if blamed or progress else idle_deaths + 1
+            if not blamed and idle_deaths >= max_attempts:   # the pool keeps dying with nothing running
+                blamed = list(broken)
+            codes = [c for c in exitcodes.values() if c not in (None, -signal.SIGTERM)]
             for i in sorted(broken):
-                if i in (culprits or ran or broken):
+                if i in blamed:
                     deaths[i] += 1
                     if deaths[i] >= max_attempts:
-                        code = getattr(procs.get(started[i]), "exitcode", None)
+                        code = exitcodes.get(started[i], codes[0] if codes else None)
                         failed(i, Failure(_death(code), deaths[i]))
                         continue
                 queue.append(i)
@@ -309,49 +425,77 @@ def _run_local(fn: Callable[[Any], Any], items: list[Any], workers: int, paths: 
         alive_r.close()
 
 
+def _blamed(broken: list[int], started: Any, exitcodes: dict[int, int | None]) -> list[int]:
+    """The items of a broken pool to charge a try: those that were running on the worker that died.
+
+    Parameters
+    ----------
+    broken : list of int
+        The items the broken pool lost (running or still queued).
+    started : sequence of int
+        Item -> pid of the worker that took it (0: none did).
+    exitcodes : dict
+        Pid -> exit code of the pool's workers (None: unknown).
+
+    Returns
+    -------
+    list of int
+        The lost items that ran on a worker that ended other than by the pool's SIGTERM (which the
+        pool sends its other workers when one dies); empty when the dead worker held none (it died
+        starting, or idle): the lost items are then tried again at no cost.
+    """
+    return [i for i in broken if started[i] and exitcodes.get(started[i]) != -signal.SIGTERM]
+
+
 def _run_ray(fn: Callable[[Any], Any], items: list[Any], workers: int, address: str | None,
-             paths: tuple[str, ...], done: Callable[[int, Any, int], None],
-             failed: Callable[[int, Failure], None], max_attempts: int) -> None:
-    """``run_parallel`` on Ray: a task whose worker is lost is submitted again."""
+             paths: tuple[str, ...], done: OnDone, failed: Callable[[int, Failure], None],
+             max_attempts: int) -> None:
+    """``run_parallel`` on Ray (``_ray_items``), then ``ray.shutdown()``: on an exception, Ctrl-C
+    included, nothing is cancelled first (module docstring), and the locals of the frames it passed
+    through are dropped first: an ``ObjectRef`` freed after ``ray.shutdown`` ends the process at
+    once with exit code 1 (Ray's core worker is gone), and its traceback would hold some."""
     reaper = None if address else _start_reaper()
     try:
         ray = start_ray(workers, address, paths)
     except BaseException:
         _stop_reaper(reaper)
         raise
-    names = ("WorkerCrashedError", "OutOfMemoryError", "NodeDiedError", "LocalRayletDiedError")
-    lost_worker = tuple(getattr(ray.exceptions, n) for n in names if hasattr(ray.exceptions, n))
     try:
-        remote = ray.remote(num_cpus=1, max_retries=0)(fn)
-        deaths = [0] * len(items)
-        refs = {remote.remote(item): i for i, item in enumerate(items)}
-        pending = list(refs)
-        try:
-            while pending:
-                ready, pending = ray.wait(pending, num_returns=1)
-                for ref in ready:
-                    i = refs.pop(ref)
-                    try:
-                        result = ray.get(ref)
-                    except lost_worker as e:
-                        deaths[i] += 1
-                        if deaths[i] >= max_attempts:
-                            text = str(e).strip().splitlines()
-                            failed(i, Failure(f"{type(e).__name__}: {text[0] if text else 'worker lost'}"[:200],
-                                              deaths[i]))
-                        else:
-                            again = remote.remote(items[i])
-                            refs[again] = i
-                            pending.append(again)
-                        continue
-                    done(i, result, deaths[i] + 1)
-        except BaseException:
-            for ref in pending:
-                ray.cancel(ref, force=True)
-            raise
+        _ray_items(ray, fn, items, done, failed, max_attempts)
+    except BaseException as e:
+        traceback.clear_frames(e.__traceback__)
+        raise
     finally:
         ray.shutdown()
         _stop_reaper(reaper)
+
+
+def _ray_items(ray: Any, fn: Callable[[Any], Any], items: list[Any], done: OnDone,
+               failed: Callable[[int, Failure], None], max_attempts: int) -> None:
+    """Run every item as a Ray task; a task whose worker is lost is submitted again."""
+    names = ("WorkerCrashedError", "OutOfMemoryError", "NodeDiedError", "LocalRayletDiedError")
+    lost_worker = tuple(getattr(ray.exceptions, n) for n in names if hasattr(ray.exceptions, n))
+    remote = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
+    deaths = [0] * len(items)
+    refs = {remote.remote(fn, item): i for i, item in enumerate(items)}
+    pending = list(refs)
+    while pending:
+        ready, pending = ray.wait(pending, num_returns=1)
+        for ref in ready:
+            i = refs.pop(ref)
+            try:
+                result, node = ray.get(ref)
+            except lost_worker as e:
+                deaths[i] += 1
+                if deaths[i] >= max_attempts:
+                    text = str(e).strip().splitlines()
+                    failed(i, Failure(f"{type(e).__name__}: {text[0] if text else 'worker lost'}"[:200], deaths[i]))
+                else:
+                    again = remote.remote(fn, items[i])
+                    refs[again] = i
+                    pending.append(again)
+                continue
+            done(i, result, deaths[i] + 1, node)
 
 
 # Run by ``_start_reaper`` as ``python -c``: record the descendants of the process argv[1] every

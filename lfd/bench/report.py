@@ -83,6 +83,7 @@ def per_shape(records: list[dict[str, Any]], learner: str) -> dict[str, dict[str
         row["n_perturbed"] = int(np.sum(n_pert))
         row["n_perturbed_ok"] = int(round(float(np.sum(n_ok))))
         row["train_time_s"] = float(np.mean([_num(r["train_time_s"]) for r in rs]))
+        row["train_cpu_s"] = float(np.mean([r.get("history", {}).get("train_cpu_s", math.nan) for r in rs]))
         row["step_time_us"] = float(np.mean([_num(r["step_time_us"]) for r in rs]))
         row["cell_s"] = float(np.sum([_num(r.get("cell_s")) for r in rs]))
         row["fallback"] = any(str(v).startswith("rk4") for r in rs for v in r.get("integrators", {}).values())
@@ -114,6 +115,7 @@ def summarize(records: list[dict[str, Any]], learners: list[str]) -> dict[str, A
         s["shapes_all_converged"] = sum(v["converged"] == 1.0 for v in vals)
         s["train_time_s"] = {**stats([v["train_time_s"] for v in vals]),
                              "total": float(sum(v["train_time_s"] for v in vals))}
+        s["train_cpu_s"] = stats([v["train_cpu_s"] for v in vals])
         s["step_time_us"] = stats([v["step_time_us"] for v in vals])
         s["cell_s_total"] = float(sum(v["cell_s"] for v in vals))
         out[learner] = s
@@ -230,7 +232,9 @@ def reading(summary: dict[str, Any], rows_by: dict[str, dict[str, dict[str, Any]
                 f"longest demo's duration. Hardest shapes by DTW: "
                 + ", ".join(f"{k} ({rows[k]['train']['dtw']:.0f})" for k in worst) + ". "
                 f"Its cells took {s['cell_s_total'] / 60:.1f} min of worker time in all "
-                f"(training and scoring, one process each). ")
+                f"(training and scoring, one process each); training took "
+                f"{fmt(s['train_cpu_s']['mean'], '.2f')} s of CPU time per shape on average (mean wall time "
+                f"{fmt(s['train_time_s']['mean'], '.2f')} s, inflated by whatever else ran). ")
         if s.get("spurious") is not None:
             text += (f"On the 35×35 grid of starts over the demos' box, {100 * s['spurious']['mean']:.1f}% "
                      "do not reach the goal (spurious-attractor fraction, mean over shapes). ")

@@ -12,7 +12,8 @@ after one warning line naming it (``read_cached``).
 
 The cells run through ``lfd.bench.executor.run_parallel`` (a local pool or Ray, surviving a dead
 worker). Both compute each cell with the same code and seeds; their numbers agree to rounding across
-processes (tests/test_bench.py, rtol 1e-6). A record's ``attempts`` counts the tries it took.
+processes (tests/test_bench.py, rtol 1e-6). A record's ``attempts`` counts the tries it took and
+its ``node`` says where the last one ran (``run_parallel``: the host, and on Ray the node's IP and id).
 """
 
 from __future__ import annotations
@@ -226,13 +227,13 @@ def run_cells(cells: Sequence[Any], cache: str | Path, workers: int = 1, fresh: 
     failed: list[dict[str, Any]] = []
     bar = tqdm(total=len(cells), initial=len(cached), desc=desc, unit="cell", disable=not progress)
 
-    def finished(i: int, result: tuple[dict[str, Any], bytes], attempts: int) -> None:
+    def finished(i: int, result: tuple[dict[str, Any], bytes], attempts: int, node: dict[str, str]) -> None:
         c = todo[i]
         record, npz = result
         if "error" in record:
             failed.append({"cell": c.stem, "reason": record["error"], "attempts": attempts, "refused": True})
         else:
-            done[c.stem] = store_cell(c, cache, {**record, "attempts": attempts}, npz)
+            done[c.stem] = store_cell(c, cache, {**record, "attempts": attempts, "node": node}, npz)
         bar.set_postfix_str(c.stem)
         bar.update()
 

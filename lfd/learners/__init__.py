@@ -70,11 +70,12 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
     norm = Normalization.from_points(demos.x, demos.goal)
     torch.manual_seed(seed)
     module = cls.build(demos.dim, config)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     history = cls.fit(module, normalize_demos(demos, norm), config, progress)
     if not history.get("interrupted"):
         _check_trained(learner, module, history)
-    history = {"train_time_s": time.perf_counter() - t0, "seed": seed, **history}
+    history = {"train_time_s": time.perf_counter() - t0, "train_cpu_s": time.process_time() - cpu0,
+               "seed": seed, **history}
     return cls.field_class(module, norm, learner, dataclasses.asdict(config), history,
                            demo_box=demos.bounds(), chart=chart)
 

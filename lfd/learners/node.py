@@ -13,9 +13,12 @@ flow of f_theta, the paper's Eq. (5), stepping as its Eq. (3)), rather than one 
 whole demo, whose errors compound. Gradients backpropagate through the solver's steps, or, with
 ``adjoint``, by the paper's adjoint ODE, Eq. (6). S grows from ``seg_start`` to ``seg`` (a curriculum);
 batches are stratified over demo and time; Adam with a cosine learning rate. Training is bound by
-per-op overhead (the batches are small), so the MLP runs as one fused autograd node with a
-hand-written backward (``_ScaledMLP``, checked by gradcheck in the tests). The details (sample units,
-curriculum, strata): docs/equations.md, "The NODE's loss".
+per-op overhead (the batches are small): with the default fixed-step ``rk4`` (torchdiffeq's, the
+3/8 rule) a whole batch of segments integrates as one autograd node with its exact discrete adjoint
+(``lfd.learners.node_kernel.RK4Segments``); with another solver or the adjoint, torchdiffeq
+integrates the MLP as one fused node (``ScaledMLP``). Both are checked against autograd through
+torchdiffeq in the tests. The details (sample units, curriculum, strata): docs/equations.md,
+"The NODE's loss".
 
 References
 ----------
@@ -43,6 +46,7 @@ from lfd.demos import DemoSet
 from lfd.errors import ConfigError
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
+from lfd.learners.node_kernel import RK4Segments, ScaledMLP, tanh_as_sigmoid
 from lfd.threads import torch_threads
 from lfd.validate import check_bools, check_ints, check_positive, is_int, is_real
 
@@ -73,11 +77,11 @@ class NodeConfig:
     goal_equilibrium : subtract g(0) so that f(0) = 0 exactly: the goal is an equilibrium
     """
 
-    hidden: tuple[int, ...] = (64, 64)
+    hidden: tuple[int, ...] = (32, 32)
     activation: str = "tanh"
-    lr: float = 1e-2
+    lr: float = 2e-2
     lr_final: float = 1e-4
-    iterations: int = 2000
+    iterations: int = 1500
     solver: str = "rk4"
     substeps: int = 1
     rtol: float = 1e-5
@@ -86,7 +90,7 @@ class NodeConfig:
     seg: int = 10
     seg_start: int = 2
     curriculum: float = 0.5
-    batch: int = 128
+    batch: int = 64
     samples: int = 100
     dtype: str = "float32"
     goal_equilibrium: bool = True
@@ -148,65 +152,12 @@ class NodeMLP(nn.Module):
         return [m for m in self.net if isinstance(m, nn.Linear)]
 
 
-def _activation_and_slope(name: str, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """z = sigma(a) and sigma'(a), both shape of a, for the activations in ``ACTIVATIONS``."""
-    if name == "tanh":
-        z = torch.tanh(a)
-        return z, 1.0 - z * z
-    if name == "relu":
-        return torch.relu(a), (a > 0).to(a.dtype)
-    if name == "softplus":
-        return nn.functional.softplus(a), torch.where(a > 20.0, 1.0, torch.sigmoid(a))
-    if name == "elu":
-        z = nn.functional.elu(a)
-        return z, torch.where(a > 0, 1.0, z + 1.0)
-    s = torch.sigmoid(a)
-    return a * s, s * (1.0 + a * (1.0 - s))
-
-
-class _ScaledMLP(torch.autograd.Function):
-    """y = (z_L W_L^T + b_L - c) h with z_i = sigma(z_{i-1} W_i^T + b_i), z_0 = x, as one autograd node.
-
-    One node instead of a dozen per evaluation: training is bound by per-op overhead, and the
-    solver calls the field 4 (S - 1) times per segment. Weights come in transposed,
-    wt_i = W_i^T : (in, out); x : (B, d); h : (B, 1); c : (1, d) (the goal offset g(0)).
-    """
-
-    @staticmethod
-    def forward(ctx: Any, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor, activation: str,
-                *params: torch.Tensor) -> torch.Tensor:
-        zs, slopes = [x], []
-        for wt, b in zip(params[0:-2:2], params[1:-2:2]):
-            z, slope = _activation_and_slope(activation, torch.addmm(b, zs[-1], wt))
-            zs.append(z)
-            slopes.append(slope)
-        ctx.save_for_backward(h, *zs, *slopes, *params[0::2])
-        ctx.n_hidden = len(slopes)
-        return (torch.addmm(params[-1], zs[-1], params[-2]) - c) * h
-
-    @staticmethod
-    def backward(ctx: Any, gy: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
-        n = ctx.n_hidden
-        saved = ctx.saved_tensors
-        h, zs, slopes, wts = saved[0], saved[1:n + 2], saved[n + 2:2 * n + 2], saved[2 * n + 2:]
-        g = gy * h
-        gc = -g.sum(0, keepdim=True) if ctx.needs_input_grad[2] else None
-        grads: list[torch.Tensor] = []
-        for i in range(n, -1, -1):  # layer i maps zs[i] -> pre-activation of layer i + 1
-            grads += [g.sum(0), zs[i].t().mm(g)]
-            g = g.mm(wts[i].t())
-            if i > 0:
-                g = g * slopes[i - 1]
-        grads.reverse()
-        return (g if ctx.needs_input_grad[0] else None, None, gc, None, *grads)
-
-
 class SegmentDynamics(nn.Module):
     """dx/dtau = h f(x) in sample units tau; h : (B, 1), the sample step of each segment's demo.
 
     Integrated over one sample, it is the paper's NODE step, Eq. (3).
 
-    With ``fused`` the field is one ``_ScaledMLP`` node and the goal offset g(0) of a NodeMLP
+    With ``fused`` the field is one ``ScaledMLP`` node and the goal offset g(0) of a NodeMLP
     is computed once per ``begin`` (the parameters are fixed during one integration);
     odeint_adjoint needs the plain f(x) instead, since it differentiates each evaluation alone.
     """
@@ -231,7 +182,7 @@ class SegmentDynamics(nn.Module):
 
     def forward(self, t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         if self.fused:
-            return _ScaledMLP.apply(x, self.h, self.offset, self.field.activation, *self.params)
+            return ScaledMLP.apply(x, self.h, self.offset, self.field.activation, *self.params)
         return self.field(x) * self.h
 
 
@@ -306,6 +257,9 @@ class _Shooting:
 
     def __init__(self, module: nn.Module, config: NodeConfig) -> None:
         self.dynamics = SegmentDynamics(cast(NodeMLP, module), fused=not config.adjoint)
+        # torchdiffeq's rk4 through a whole segment as one node (lfd.learners.node_kernel)
+        self.fused_rk4 = config.solver == "rk4" and not config.adjoint
+        self.substeps = config.substeps
         self.solve = odeint_adjoint if config.adjoint else odeint
         self.kwargs = solver_options(config)
         if config.adjoint:
@@ -318,7 +272,15 @@ class _Shooting:
         """The loss L of the module docstring (the paper's Eq. (4), by multiple shooting) on
         windows w, shape (S, B, d), with sample steps hb, shape (B, 1), at tau, shape (S,)."""
         self.dynamics.begin(hb)
-        pred = self.solve(self.dynamics, w[0], tau, **self.kwargs)
+        if self.fused_rk4:
+            d, activation = self.dynamics, self.dynamics.field.activation
+            params = d.params
+            if activation == "tanh":
+                params, activation = tanh_as_sigmoid(params), "sigmoid"
+            pred = RK4Segments.apply(w[0], hb / self.substeps, d.offset, self.substeps, w.shape[0],
+                                     activation, *params)
+        else:
+            pred = self.solve(self.dynamics, w[0], tau, **self.kwargs)
         return torch.mean((pred[1:] - w[1:]) ** 2)
 
     def step(self, loss: torch.Tensor) -> None:

@@ -32,7 +32,6 @@ import time
 from typing import Any
 
 import numpy as np
-import pinocchio as pin
 from _speed import none_and_push, run_main
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
@@ -44,39 +43,11 @@ import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
 from lfd.cache import cached_field  # noqa: E402
 from robots import RobotError, load_robot  # noqa: E402
 from sim.controller import ACTUATIONS  # noqa: E402
+from sim.scaling import bare_steps, holding_data  # noqa: E402
 
 
 def stats(x: np.ndarray) -> str:
     return f"median {np.median(x) * 1e6:7.1f} us   p95 {np.percentile(x, 95) * 1e6:7.1f} us"
-
-
-def bare_steps(model: mujoco.MjModel, data: mujoco.MjData, n: int) -> tuple[np.ndarray, float]:
-    """Wall time of n bare mj_step calls, each timed, shape (n,), and the CPU time of all n
-    (``time.thread_time``, untimed calls)."""
-    out = np.empty(n)
-    clock = time.perf_counter
-    for k in range(n):
-        t0 = clock()
-        mujoco.mj_step(model, data)
-        out[k] = clock() - t0
-    cpu0 = time.thread_time()
-    for _ in range(n):
-        mujoco.mj_step(model, data)
-    return out, time.thread_time() - cpu0
-
-
-def holding_data(exp: sim.Experiment, q: np.ndarray) -> mujoco.MjData:
-    """Fresh MjData at rest at q, shape (n,), with controls that hold it there (the servo target q,
-    or the gravity torque g(q)), so bare steps neither fall nor hit limits."""
-    m, robot = exp.physics.model.ptr, exp.robot
-    d = mujoco.MjData(m)
-    d.qpos[robot.mj_qpos_adr] = q
-    if exp.robot.actuation == "position":
-        d.ctrl[robot.mj_actuator_ids] = q
-    else:
-        d.ctrl[robot.mj_actuator_ids] = pin.computeGeneralizedGravity(robot.pin_model, robot.pin_model.createData(), q)
-    mujoco.mj_forward(m, d)
-    return d
 
 
 def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict[str, np.ndarray]:

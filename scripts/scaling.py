@@ -460,10 +460,11 @@ def report(learner_records: list[dict[str, Any]], control_records: list[dict[str
              f"Made by `{meta['command']}` ({meta['date']}; {meta['machine']}). "
              + ("**Quick mode (a smoke test): few sizes, few iterations; not a measurement.** " if meta["quick"]
                 else "") +
-             f"Wall time of this run: {meta['wall_s']:.0f} s ({meta['measured_s']:.0f} s measuring, the rest "
-             f"read from the cache `{meta['cache']}`); the measurements it reports took "
-             f"{meta['cache_total_s']:.0f} s wall in all when they were made (imports, warm-up and figures "
-             f"not counted). Load average {meta['load_start']:.1f} at the start, "
+             f"The run that wrote this report took {meta['wall_s']:.0f} s wall, {meta['measured_s']:.0f} s of "
+             "it measuring (the rest: warm-up, figures, and the points it read from the cache "
+             f"`{meta['cache']}`); the measurements reported here took {meta['cache_total_s']:.0f} s wall in all "
+             "when they were made (imports, warm-up and figures not counted). "
+             f"Load average {meta['load_start']:.1f} at the start, "
              f"{meta['load_end']:.1f} at the end, on {os.cpu_count()} CPUs: wall times are noisy, so the "
              "exponents are fitted on CPU time (training) and on medians (per-call and per-step times).", "",
              "Exponents: the least-squares slope b of log(cost) against log(size), cost ≈ c size^b, over all "

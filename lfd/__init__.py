@@ -15,7 +15,6 @@ import os
 # numpy input into torch's 64-byte-aligned memory (torch.tensor, not from_numpy), and MKL's
 # conditional numerical reproducibility is asked for here, before torch loads MKL.
 os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
-from typing import TYPE_CHECKING, Any
 
 from lfd.errors import ConfigError, DemoError, LfdError, ModelError
 
@@ -33,7 +32,10 @@ _SUBMODULES = ("demos", "field", "learners", "normalization", "metrics", "evalua
                "threads", "modelfile", "certify",
                "plotting", "commands", "cli", "bench", "obstacles", "goal")
 
+TYPE_CHECKING = False  # not typing's: ``import lfd`` stays cheap for the programs' first lines
 if TYPE_CHECKING:
+    from typing import Any
+
     from lfd.demos import DemoSet, lasa, load_demos, spiral, spiral3d
     from lfd.field import VelocityField
     from lfd.learners import LEARNERS, get_learner, load, train

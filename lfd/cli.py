@@ -16,17 +16,25 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import os
-import signal
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any, NoReturn
+
+from lfd.interrupts import (
+    EXIT_BROKEN_PIPE,
+    EXIT_INTERRUPTED,
+    DeferredInterrupts,
+    install_signal_handlers,
+    restore_signal_handlers,
+    run_guarded,
+)
+from lfd.interrupts import say as _say
 
 COMMANDS: list[str] = ["train", "eval", "plot", "bench", "certify", "export"]
 
 EXIT_USAGE = 2
-EXIT_INTERRUPTED = 130
-EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
+__all__ = ["COMMANDS", "EXIT_BROKEN_PIPE", "EXIT_INTERRUPTED", "EXIT_USAGE", "build_parser", "install_signal_handlers",
+           "main", "restore_signal_handlers", "run_guarded"]
 
 
 class _Parser(argparse.ArgumentParser):
@@ -68,90 +76,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _raise_interrupt(signum: int, frame: Any) -> None:
-    """SIGTERM (and a second SIGINT) end the run like Ctrl-C: cleanup runs, exit code 130."""
-    raise KeyboardInterrupt
-
-
-def install_signal_handlers() -> dict[int, Any]:
-    """Make SIGINT and SIGTERM raise KeyboardInterrupt; returns the previous handlers.
-
-    Done first thing in ``main``, before the heavy imports, so an early Ctrl-C is no traceback.
-    Outside the main thread (where Python cannot set handlers) nothing changes.
-    """
-    previous: dict[int, Any] = {}
-    try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, _raise_interrupt)
-    except ValueError:  # not the main thread
-        pass
-    return previous
-
-
-def restore_signal_handlers(previous: dict[int, Any]) -> None:
-    for sig, handler in previous.items():
-        signal.signal(sig, handler)
-
-
-# imported under ``_DeferredInterrupts`` before a command runs: an interrupt inside an import can
-# surface as another error (numpy turns it into an AttributeError), so it waits until they are done
+# imported with interrupts deferred before a command runs (lfd.interrupts.DeferredInterrupts)
 PRELOAD = ("torch", "numpy", "scipy.signal", "torchdiffeq", "lfd.demos", "lfd.field", "lfd.learners")
-
-
-class _DeferredInterrupts:
-    """Within the block, SIGINT and SIGTERM only mark the run interrupted (a second one ends the
-    process at once, exit 130); on leaving, a marked run raises KeyboardInterrupt."""
-
-    def __init__(self) -> None:
-        self.hit = False
-        self.previous: dict[int, Any] = {}
-
-    def _mark(self, signum: int, frame: Any) -> None:
-        if self.hit:
-            _say("lfd: interrupted")
-            os._exit(EXIT_INTERRUPTED)
-        self.hit = True
-
-    def __enter__(self) -> _DeferredInterrupts:
-        try:
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.previous[sig] = signal.signal(sig, self._mark)
-        except ValueError:  # not the main thread
-            pass
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        restore_signal_handlers(self.previous)
-        if self.hit:
-            raise KeyboardInterrupt
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line ``argv`` (default: sys.argv[1:]); returns the exit code."""
-    previous = install_signal_handlers()
+    previous = install_signal_handlers()  # first thing: an early Ctrl-C or SIGTERM is no traceback
     try:
         return run_guarded(_main, argv, "lfd")
     finally:
         restore_signal_handlers(previous)
-
-
-def run_guarded(run: Callable[[Sequence[str] | None], int], argv: Sequence[str] | None, prog: str) -> int:
-    """``run(argv)``, with Ctrl-C (and SIGTERM, once the handlers are installed) ending in
-    ``<prog>: interrupted`` and exit code 130, and a reader that went away (``| head``) in a quiet
-    exit 141. Shared by ``lfd`` and ``scripts/demo_arm.py``."""
-    try:
-        try:
-            code = run(argv)
-            sys.stdout.flush()
-            return code
-        except KeyboardInterrupt:
-            _say(f"{prog}: interrupted")
-            return EXIT_INTERRUPTED
-        except BrokenPipeError:  # ``... | head -1``: the reader has gone; end quietly
-            _silence_stdout()
-            return EXIT_BROKEN_PIPE
-    except KeyboardInterrupt:  # a second Ctrl-C while reporting the first
-        return EXIT_INTERRUPTED
 
 
 def _main(argv: Sequence[str] | None) -> int:
@@ -159,7 +94,7 @@ def _main(argv: Sequence[str] | None) -> int:
 
     from lfd.errors import LfdError
 
-    with _DeferredInterrupts():
+    with DeferredInterrupts("lfd"):
         try:
             args = build_parser().parse_args(argv)
         except SystemExit as e:  # --help (0) or a usage error (2), already printed
@@ -186,22 +121,6 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
     """A warning as one line ``lfd: warning: ...`` (no source file, no code line)."""
     text = str(message).strip()
     _say(f"lfd: warning: {text.splitlines()[0] if text else category.__name__}")
-
-
-def _say(text: str) -> None:
-    try:
-        print(text, file=sys.stderr)
-    except (OSError, ValueError):
-        pass
-
-
-def _silence_stdout() -> None:
-    """Point stdout at /dev/null so the interpreter's final flush raises no second error."""
-    try:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError, AttributeError):
-        pass
 
 
 def _one_line(e: BaseException) -> str:

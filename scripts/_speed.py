@@ -15,12 +15,11 @@ from typing import Any, NoReturn
 
 
 def run_main(main: Callable[[], int], prog: str) -> NoReturn:
-    """``sys.exit(main())``; a KeyboardInterrupt prints ``PROG: interrupted`` and exits 130."""
-    try:
-        sys.exit(main())
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        sys.exit(130)
+    """``sys.exit(main())``; Ctrl-C or SIGTERM prints ``PROG: interrupted`` and exits 130
+    (``lfd.interrupts.run_main``)."""
+    from lfd.interrupts import run_main as run
+
+    sys.exit(run(prog, lambda: lambda argv: main()))
 
 
 def none_and_push(exp: Any, field: Any) -> tuple[dict[str, Any], dict[str, Any], str]:

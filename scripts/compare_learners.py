@@ -24,6 +24,10 @@ import time
 from typing import Any
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
+    from lfd.interrupts import run_script
+
+    run_script(__file__)
 
 import matplotlib  # noqa: E402
 
@@ -111,7 +115,3 @@ def main(argv: list[str] | None = None) -> int:
         print("   certificate:", e.cert)
     print(f"wrote {os.path.join(out, 'comparison.md')} in {wall:.0f} s")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -18,11 +18,19 @@ Writes reports/contraction_tradeoff.md and .json. Progress on a terminal only; C
 
 from __future__ import annotations
 
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
+    from lfd.interrupts import run_script
+
+    run_script(__file__)
+
 import argparse
 import json
 import math
 import multiprocessing as mp
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -30,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+# imported before main with interrupts deferred (lfd.interrupts.run_script)
+PRELOAD = ("torch", "lfd.learners.contraction", "lfd.bench.evaluate", "lfd.certify", "tqdm.auto")
 KAPPAS: tuple[float, ...] = (4.0, 25.0, 100.0, 1e4, math.inf)
 RATES: tuple[float, ...] = (0.1, 0.2, 0.5, 1.0)
 BUDGET_GROW = 3.0   # ``budget_use`` samples the metric over the demos' box grown 3 times its size
@@ -242,7 +252,7 @@ def main() -> int:
             lasa_rows = list(tqdm(pool.imap(lasa_cell, jobs), total=len(jobs), disable=None, desc="LASA"))
         spiral = [spiral_row(k, r) for k in KAPPAS for r in (0.5, 3.0)]
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("contraction_tradeoff: interrupted", file=sys.stderr)
         return 130
     from lfd.io import write_json
 
@@ -260,7 +270,3 @@ def main() -> int:
                indent=1)
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -12,30 +12,9 @@ from __future__ import annotations
 
 import os
 import sys
-from typing import Any
 
-EXIT_INTERRUPTED = 130
-_PENDING: list[int] = []   # a signal that arrived during the start-up imports
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
+    from lfd.interrupts import run_script
 
-
-def _defer(signum: int, frame: Any) -> None:
-    """During the imports, remember SIGINT / SIGTERM (an interrupt inside an import can surface as
-    another error); a second one ends the process at once."""
-    if _PENDING:
-        print("demo_arm: interrupted", file=sys.stderr)
-        os._exit(EXIT_INTERRUPTED)
-    _PENDING.append(signum)
-
-
-if __name__ == "__main__":
-    import signal
-
-    for _sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(_sig, _defer)
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-    from sim.cli import main
-
-    if _PENDING:
-        print("demo_arm: interrupted", file=sys.stderr)
-        sys.exit(EXIT_INTERRUPTED)
-    sys.exit(main())
+    run_script(__file__, "sim.cli")

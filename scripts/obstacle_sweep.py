@@ -10,14 +10,23 @@ resumes. The learners' models come from the model cache (trained here first, one
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
+    from lfd.interrupts import run_script
+
+    run_script(__file__)
+
+import argparse
 from pathlib import Path
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 ROOT = Path(__file__).resolve().parents[1]
+# imported before main with interrupts deferred (lfd.interrupts.run_script)
+PRELOAD = ("numpy", "lfd.bench.obstacles", "lfd.bench.runner", "lfd.cache", "lfd.io")
 sys.path.insert(0, str(ROOT))
 
 
@@ -170,7 +179,3 @@ def _limits(demos: object, y: object) -> list[tuple[float, float]]:
     lo, hi = pts.min(0), pts.max(0)
     pad = 0.1 * (hi - lo).max()
     return [(float(lo[k] - pad), float(hi[k] + pad)) for k in range(2)]
-
-
-if __name__ == "__main__":
-    sys.exit(main())

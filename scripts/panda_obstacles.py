@@ -18,15 +18,24 @@ final goal error, ``blocked``, the smallest clearance and the real-time factor. 
 
 from __future__ import annotations
 
-import argparse
-import io
 import os
 import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
+    from lfd.interrupts import run_script
+
+    run_script(__file__)
+
+import argparse
+import io
 from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 ROOT = Path(__file__).resolve().parents[1]
+# imported before main with interrupts deferred (lfd.interrupts.run_script)
+PRELOAD = ("numpy", "sim", "robots", "lfd.bench.runner", "lfd.cache", "lfd.io")
 sys.path.insert(0, str(ROOT))
 
 LEARNERS = ("contraction", "node", "tracking")
@@ -185,7 +194,3 @@ def report(recs: list[dict], placements: int) -> list[str]:
         lines.append(f"- {r['learner']} / {x['scenario']}, scene {r['scene']}: {x['contact_steps']} contact steps, "
                      f"goal {x['final_goal_error_mm']:.1f} mm, blocked {x['blocked']}; " + "; ".join(r["obstacles"]))
     return lines
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -10,16 +10,25 @@ and goal errors in mm and degrees, push recovery, joint-limit violations, per ta
 
 from __future__ import annotations
 
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
+    from lfd.interrupts import run_script
+
+    run_script(__file__)
+
 import argparse
 from pathlib import Path
-
-from _speed import run_main
 
 #: task -> translation (m) of the recorded poses: the tasks whose samples the arm cannot all reach
 #: where recorded (the smallest shift of a small grid that makes every checked sample reachable)
 SHIFTS: dict[str, tuple[float, float, float]] = {"openbox": (0.0, 0.02, -0.02), "pan2stove": (0.0, 0.04, 0.0)}
 SCENARIOS: dict[str, tuple[str, ...]] = {"pan2stove": ("none", "push", "goal")}   # offset: start out of reach
 DEFAULT_SCENARIOS = ("none", "push", "offset", "goal")
+# imported before main with interrupts deferred (lfd.interrupts.run_script)
+PRELOAD = ("sim", "sim.pipeline", "lfd.demos", "lfd.io")
 
 
 def main() -> int:
@@ -63,7 +72,3 @@ def main() -> int:
     atomic_write(args.report, lambda f: f.write(text.encode()))
     print(f"wrote {args.report}")
     return 0
-
-
-if __name__ == "__main__":
-    run_main(main, "robottasks_arm")

@@ -20,14 +20,21 @@ terminal only. Bad options: one line on stderr, exit 2; Ctrl-C: exit 130.
 
 from __future__ import annotations
 
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
+    from lfd.interrupts import run_script
+
+    run_script(__file__)
+
 import argparse
 import dataclasses
 import hashlib
 import json
 import math
-import os
 import platform
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -35,6 +42,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 os.environ.setdefault("MUJOCO_GL", "egl")
+# imported before main with interrupts deferred (lfd.interrupts.run_script)
+PRELOAD = ("numpy", "sim", "robots", "lfd.learners", "lfd.cache", "lfd.io", "lfd.bench.scaling", "lfd.bench.evaluate")
 
 PROG = "scaling"
 ALL_LEARNERS = ("node", "contraction", "tracking", "dmp")
@@ -714,6 +723,3 @@ def main(argv: list[str] | None = None) -> int:
 
 
 QUICK_ITERATIONS_TEXT = ",".join(f"{k}={v}" for k, v in QUICK_ITERATIONS.items())
-
-if __name__ == "__main__":
-    sys.exit(main())

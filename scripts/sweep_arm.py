@@ -43,12 +43,21 @@ Examples::
 
 from __future__ import annotations
 
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+if __name__ == "__main__":
+    # Ctrl-C and SIGTERM handled from here on; the sweep runs as the module ``sweep_arm``, so that
+    # worker processes and Ray tasks unpickle RunSpec and run_one by that importable name
+    from lfd.interrupts import run_script
+
+    run_script(__file__)
+
 import argparse
 import json
 import math
-import os
 import shutil
-import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -57,10 +66,12 @@ from typing import Any
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
 if HERE not in sys.path:
     sys.path.append(HERE)          # worker processes import this module by name
 
+# imported before main with interrupts deferred (lfd.interrupts.run_script): an interrupt inside an import
+# can surface as another error (MuJoCo's reads as "ImportError: initialization failed")
+PRELOAD = ("sim", "robots", "lfd.learners", "lfd.cache", "lfd.io", "lfd.bench.executor", "tqdm.auto")
 KINDS: tuple[str, ...] = ("push", "offset", "goal")
 PUSH_JITTER_RAD = 0.05             # seeded jitter of a push direction per seed (radians)
 RECORD_VERSION = 1
@@ -471,7 +482,7 @@ def prepare_models(args: argparse.Namespace) -> str:
 def main(argv: list[str] | None = None) -> int:
     """The sweep (module docstring); returns the exit code: 0 done, 2 bad input, 130 interrupted
     (Ctrl-C or SIGTERM: the workers are stopped, every finished record is kept)."""
-    from lfd.cli import install_signal_handlers, restore_signal_handlers
+    from lfd.interrupts import install_signal_handlers, restore_signal_handlers
 
     previous = install_signal_handlers()   # SIGTERM is Ctrl-C: KeyboardInterrupt, exit 130
     try:
@@ -536,11 +547,3 @@ def _main(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print("sweep_arm: interrupted", file=sys.stderr)
         return 130
-
-
-if __name__ == "__main__":
-    # run as the module ``sweep_arm`` (this directory is on sys.path), so worker processes and Ray
-    # tasks unpickle RunSpec and run_one by that importable name
-    import sweep_arm
-
-    sys.exit(sweep_arm.main())

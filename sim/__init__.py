@@ -30,16 +30,52 @@ environment with the loop's lean step), ``sim.loop`` (the closed loop),
 dampers in the IK, the hand margin), ``sim.errors`` (``SimError`` and its kinds).
 """
 
+from __future__ import annotations
+
+import importlib
+
 from sim.gl import select_backend
 
 select_backend()  # MUJOCO_GL must be set before mujoco (or dm_control) is imported
 
 from sim.errors import SimError  # noqa: E402
-from sim.experiment import SCENARIOS, Experiment, RunResult  # noqa: E402
-from sim.perturbations import GoalShift, JointVelocityNoise, Push, StartOffset  # noqa: E402
-from sim.pipeline import ArmJob, JobReport, PushSpec, run_job  # noqa: E402
-from sim.placement import Placement  # noqa: E402
-from sim.task import OBSERVATION_KEYS, make_environment  # noqa: E402
+
+# The names below are imported on first use (PEP 562): ``import sim.cli`` (``lfd-demo-arm``) does not pay
+# for mujoco and torch before its main has taken over Ctrl-C and SIGTERM (lfd.interrupts).
+# public name -> the module that defines it
+_LAZY: dict[str, str] = {
+    "SCENARIOS": "sim.experiment", "Experiment": "sim.experiment", "RunResult": "sim.experiment",
+    "GoalShift": "sim.perturbations", "JointVelocityNoise": "sim.perturbations", "Push": "sim.perturbations",
+    "StartOffset": "sim.perturbations",
+    "ArmJob": "sim.pipeline", "JobReport": "sim.pipeline", "PushSpec": "sim.pipeline", "run_job": "sim.pipeline",
+    "Placement": "sim.placement",
+    "OBSERVATION_KEYS": "sim.task", "make_environment": "sim.task",
+}
+
+TYPE_CHECKING = False
+if TYPE_CHECKING:
+    from typing import Any
+
+    from sim.experiment import SCENARIOS, Experiment, RunResult
+    from sim.perturbations import GoalShift, JointVelocityNoise, Push, StartOffset
+    from sim.pipeline import ArmJob, JobReport, PushSpec, run_job
+    from sim.placement import Placement
+    from sim.task import OBSERVATION_KEYS, make_environment
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    if not name.startswith("__"):  # ``import sim; sim.loop`` worked when this file imported its modules eagerly
+        try:
+            return importlib.import_module(f"sim.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"sim.{name}":
+                raise
+    raise AttributeError(f"module 'sim' has no attribute '{name}'")
+
 
 __all__ = [
     "ArmJob", "Experiment", "GoalShift", "JobReport", "JointVelocityNoise", "OBSERVATION_KEYS", "Placement",

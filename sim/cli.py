@@ -11,10 +11,13 @@ import argparse
 import math
 import sys
 from collections.abc import Sequence
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
-from sim.experiment import SCENARIOS
-from sim.pipeline import ArmJob, PushSpec
+from lfd.interrupts import run_main
+from lfd.interrupts import say as _say
+
+if TYPE_CHECKING:
+    from sim.pipeline import ArmJob
 
 __all__ = ["build_parser", "job_from_args", "main"]
 
@@ -50,6 +53,8 @@ def _number(text: str) -> float:
 @_type
 def scenarios(text: str) -> tuple[str, ...]:
     """'all' -> every scenario; 'none,push' -> ('none', 'push')."""
+    from sim.experiment import SCENARIOS
+
     names = SCENARIOS if text == "all" else tuple(s.strip() for s in text.split(",") if s.strip())
     bad = [n for n in names if n not in SCENARIOS]
     if bad or not names:
@@ -60,6 +65,8 @@ def scenarios(text: str) -> tuple[str, ...]:
 
 @_type
 def one_scenario(text: str) -> str:
+    from sim.experiment import SCENARIOS
+
     if text not in SCENARIOS:
         raise ValueError(f"unknown scenario '{text[:40]}'; use one of {', '.join(SCENARIOS)}")
     return text
@@ -116,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The flags of the arm job (every one an ``ArmJob`` field)."""
     from lfd import commands as lfd_commands  # the seed rule every command shares
     from robots.loader import ACTUATIONS
+    from sim.experiment import SCENARIOS
 
     p = _Parser(prog="demo_arm.py", description="Run learned velocity fields on a simulated arm in closed "
                 "loop, perturb them, score and film them.")
@@ -187,6 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJob:
     """The ``ArmJob`` of parsed flags."""
+    from sim.pipeline import ArmJob, PushSpec
+
     learners = None if args.learner is None else (
         ("node", "contraction") if args.learner == "both" else (args.learner,))
     return ArmJob(
@@ -224,6 +234,14 @@ def print_table(results: Sequence[Any]) -> None:
               + (f" {m.get('obstacle_contacts', '-'):>8}" if contacts else ""))
 
 
+def _load() -> Any:
+    """The job's modules (imported with interrupts deferred); returns the program."""
+    import lfd.learners  # noqa: F401
+    import sim.pipeline  # noqa: F401
+
+    return _run
+
+
 def _run(argv: Sequence[str] | None) -> int:
     import warnings
 
@@ -254,13 +272,6 @@ def _run(argv: Sequence[str] | None) -> int:
     return 0
 
 
-def _say(text: str) -> None:
-    try:
-        print(text, file=sys.stderr)
-    except (OSError, ValueError):
-        pass
-
-
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
                   file: Any = None, line: str | None = None) -> None:
     text = str(message).strip()
@@ -270,11 +281,5 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the arm job of the command line ``argv`` (default ``sys.argv[1:]``); returns the exit code.
 
-    SIGINT and SIGTERM end it with ``demo_arm: interrupted`` and exit code 130."""
-    from lfd.cli import install_signal_handlers, restore_signal_handlers, run_guarded
-
-    previous = install_signal_handlers()
-    try:
-        return run_guarded(_run, argv, PROG)
-    finally:
-        restore_signal_handlers(previous)
+    SIGINT and SIGTERM end it with ``demo_arm: interrupted`` and exit code 130 (``lfd.interrupts``)."""
+    return run_main(PROG, _load, argv)

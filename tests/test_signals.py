@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -127,3 +128,70 @@ def test_signals_exit_130_and_leave_no_file(demos: Path, tmp_path: Path) -> None
             proc.wait()
             proc.stdout.close()
             proc.stderr.close()
+
+
+def _handles_sigterm(pid: int) -> bool:
+    """Whether the process has a handler for SIGTERM (Python itself installs none: the program's
+    code has started), from its caught-signal mask in /proc."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            mask = next(int(line.split()[1], 16) for line in f if line.startswith("SigCgt:"))
+    except (OSError, StopIteration):
+        return False
+    return bool(mask >> (signal.SIGTERM - 1) & 1)
+
+
+# the project's files that run before the handlers are in place: the interpreter's start-up, then these
+BEFORE_HANDLERS = ("lfd/__init__.py", "lfd/errors.py", "lfd/interrupts.py", "lfd/cli.py", "scripts/sweep_arm.py")
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the signal masks in /proc")
+def test_early_signal_exits_130_without_traceback(tmp_path: Path) -> None:
+    """SIGINT and SIGTERM into ``scripts/sweep_arm.py`` and ``lfd train`` a few moments after their
+    start: during the interpreter's start-up, the programs' module-level imports and their first
+    work. Once the program's code has taken the signals (SIGTERM caught at the moment it is sent)
+    the end is exit 130, exactly one line ``<prog>: interrupted``, nothing on stdout and nothing
+    written; before, the signal ends the bare interpreter (killed by it, or Python's own
+    KeyboardInterrupt from its start-up), with no frame of the project's code past its first lines
+    and nothing written either."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "LFD_CACHE_DIR": str(tmp_path / "models")}
+    sweep = [sys.executable, str(ROOT / "scripts" / "sweep_arm.py"), "--robots", "planar", "--learners",
+             "contraction", "--kinds", "push", "--directions", "1", "--forces", "20", "--workers", "1"]
+    lfd = [sys.executable, "-c", "import sys; from lfd.cli import main; sys.exit(main())", "train", "--demos",
+           "spiral", "--iterations", "100000", "--quiet"]
+    cases = [("sweep_arm", sweep, 0.02, signal.SIGINT), ("sweep_arm", sweep, 0.1, signal.SIGTERM),
+             ("sweep_arm", sweep, 0.1, signal.SIGINT), ("sweep_arm", sweep, 0.3, signal.SIGTERM),
+             ("sweep_arm", sweep, 0.5, signal.SIGINT), ("lfd", lfd, 0.05, signal.SIGTERM),
+             ("lfd", lfd, 0.3, signal.SIGINT)]
+    (tmp_path / "models").mkdir()
+    children = []
+    try:
+        for i, (prog, argv, delay, sig) in enumerate(cases):
+            out = tmp_path / f"out{i}"
+            argv = [*argv, "--out", str(out / "m.pt" if prog == "lfd" else out)]
+            proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                                    env=env)
+            children.append([prog, delay, sig, out, proc, time.monotonic(), None])
+        pending = sorted(children, key=lambda c: c[1])
+        for child in pending:  # each signal at its delay after its child's start
+            time.sleep(max(0.0, child[5] + child[1] - time.monotonic()))
+            child[6] = _handles_sigterm(child[4].pid)
+            child[4].send_signal(child[2])
+        for prog, delay, sig, out, proc, _, ours in children:
+            stdout, stderr = proc.communicate(timeout=120)
+            what = f"{prog} {sig.name} at {delay} s: rc {proc.returncode}, stderr {stderr[-600:]!r}"
+            assert not out.exists() or not any(out.rglob("*")), what + f"; left {list(out.rglob('*'))}"
+            if ours:
+                assert (proc.returncode, stderr, stdout) == (130, f"{prog}: interrupted\n", ""), what
+            elif proc.returncode != 130:   # the bare interpreter, before the program's first lines had run
+                assert proc.returncode in (-sig, 1), what
+                frames = [line.split('"')[1] for line in stderr.splitlines() if line.startswith('  File "')]
+                project = [f for f in frames if f.startswith(str(ROOT)) and not f.startswith(sys.prefix)]
+                assert all(f.endswith(BEFORE_HANDLERS) for f in project), what
+            else:
+                assert stderr == f"{prog}: interrupted\n" and "Traceback" not in stderr, what
+        assert not [p for p in (tmp_path / "models").rglob("*") if p.is_file()]   # no model half-cached
+    finally:
+        for child in children:
+            child[4].kill()
+            child[4].wait()

@@ -3,11 +3,12 @@
 Executors (``EXECUTORS``; both through ``run_parallel``, whose callbacks run in THIS process):
 
 * ``local``: a ``ProcessPoolExecutor`` (forkserver context where available, else spawn) with
-  one torch thread each and SIGINT ignored: Ctrl-C reaches only the parent, which stops the
+  one thread each for torch and the native pools (BLAS, OpenMP) and SIGINT ignored: Ctrl-C
+  reaches only the parent, which stops the
   pool and its processes; a cell cut short leaves no file. Each worker watches a pipe from its
   parent and ends when the parent dies (kill -9 included). A worker that dies takes the pool with
   it: the lost cells run again on a new pool, each up to ``MAX_ATTEMPTS`` times.
-* ``ray``: Ray tasks (one CPU, one torch thread each). Without an address Ray starts a local
+* ``ray``: Ray tasks (one CPU, one thread each for torch and the native pools). Without an address Ray starts a local
   instance with ``workers`` CPUs (no dashboard); with ``address`` (``HOST:PORT``, ``ray://HOST:PORT``
   or ``auto``; default ``$RAY_ADDRESS``) it joins that cluster, and the tasks run on any of its
   nodes. A task returns the record and the NPZ bytes and THIS process writes the files, so the
@@ -52,8 +53,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
-
-import torch
 
 from lfd.errors import LfdError
 
@@ -102,10 +101,11 @@ def check_executor(executor: str, address: str | None = None) -> str | None:
 
 
 def _init_worker(paths: tuple[str, ...], alive: Any, started: Any) -> None:
-    """Set up a pool worker: SIGINT ignored (the parent stops the pool), one torch thread, the
-    import ``paths`` (before any task is unpickled: a forkserver may be older than them), the
-    shared ``started`` array, warnings on one line, tqdm's lock a thread lock, and a thread that
-    ends the process when the parent dies.
+    """Set up a pool worker: SIGINT ignored (the parent stops the pool), one thread for torch and
+    in each native pool (BLAS, OpenMP; ``lfd.threads.limit_native_threads``), the import ``paths``
+    (before any task is unpickled: a forkserver may be older than them), the shared ``started``
+    array, warnings on one line, tqdm's lock a thread lock, and a thread that ends the process when
+    the parent dies.
 
     tqdm's default lock holds a named semaphore in a forkserver or spawn worker, which a killed
     worker cannot unlink: the parent's resource tracker would then warn of "leaked semaphore
@@ -115,7 +115,9 @@ def _init_worker(paths: tuple[str, ...], alive: Any, started: Any) -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     tqdm.set_lock(threading.RLock())
-    torch.set_num_threads(1)
+    from lfd.threads import limit_native_threads
+
+    limit_native_threads(1)   # torch, numpy's BLAS, OpenMP: one thread, as in a Ray task and in-process
     for p in paths:
         if p not in sys.path:
             sys.path.append(p)
@@ -287,8 +289,12 @@ def ray_node() -> dict[str, str]:
 
 
 def _ray_task(fn: Callable[[Any], Any], item: Any) -> tuple[Any, dict[str, str]]:
-    """A Ray task: ``fn(item)`` and the node that ran it (``ray_node``)."""
-    return fn(item), ray_node()
+    """A Ray task: ``fn(item)`` (one thread in each native pool, as in a local worker) and the node
+    that ran it (``ray_node``)."""
+    from lfd.threads import native_threads
+
+    with native_threads(1):
+        return fn(item), ray_node()
 
 
 def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, executor: str = "local",
@@ -304,7 +310,8 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, execu
     items : list
         The items.
     workers : int
-        Parallel processes; ``local`` with 1 worker runs in this process, with one torch thread.
+        Parallel processes; ``local`` with 1 worker runs in this process, one thread for torch and
+        each native pool (as every worker).
     executor : str
         ``local`` (a process pool) or ``ray`` (module docstring).
     address : str, optional
@@ -339,14 +346,12 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, execu
     if executor == "ray":
         _run_ray(fn, items, workers, address, paths, done, failed, max_attempts)
     elif workers <= 1:
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
+        from lfd.threads import native_threads
+
+        with native_threads(1):   # as in a pool worker or a Ray task: the same floats
             here = local_node()
             for i, item in enumerate(items):
                 done(i, fn(item), 1, here)
-        finally:
-            torch.set_num_threads(threads)
     else:
         _run_local(fn, items, workers, paths, done, failed, max_attempts)
     if lost:

@@ -6,7 +6,6 @@ The public names below are imported on first use (PEP 562), so that ``import lfd
 
 from __future__ import annotations
 
-import importlib
 import os
 
 # Cross-process reproducibility. MKL picks alignment-dependent code paths: numpy buffers are only
@@ -17,6 +16,7 @@ import os
 os.environ.setdefault("MKL_CBWR", "COMPATIBLE")
 
 from lfd.errors import ConfigError, DemoError, LfdError, ModelError
+from lfd.lazy import lazy_getattr
 
 # public name -> the module that defines it
 _LAZY: dict[str, str] = {
@@ -34,8 +34,6 @@ _SUBMODULES = ("demos", "field", "learners", "normalization", "metrics", "evalua
 
 TYPE_CHECKING = False  # not typing's: ``import lfd`` stays cheap for the programs' first lines
 if TYPE_CHECKING:
-    from typing import Any
-
     from lfd.demos import DemoSet, lasa, load_demos, spiral, spiral3d
     from lfd.field import VelocityField
     from lfd.learners import LEARNERS, get_learner, load, train
@@ -43,14 +41,8 @@ if TYPE_CHECKING:
     from lfd.obstacles import Obstacle, avoid
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    if name in _SUBMODULES:  # ``import lfd; lfd.learners`` worked when this file imported them eagerly
-        return importlib.import_module(f"lfd.{name}")
-    raise AttributeError(f"module 'lfd' has no attribute '{name}'")
+# ``import lfd; lfd.learners`` worked when this file imported the submodules eagerly
+__getattr__ = lazy_getattr("lfd", _LAZY, _SUBMODULES)
 
 
 __all__ = [

@@ -32,12 +32,11 @@ dampers in the IK, the hand margin), ``sim.errors`` (``SimError`` and its kinds)
 
 from __future__ import annotations
 
-import importlib
-
 from sim.gl import select_backend
 
 select_backend()  # MUJOCO_GL must be set before mujoco (or dm_control) is imported
 
+from lfd.lazy import lazy_getattr  # noqa: E402
 from sim.errors import SimError  # noqa: E402
 
 # The names below are imported on first use (PEP 562): ``import sim.cli`` (``lfd-demo-arm``) does not pay
@@ -54,8 +53,6 @@ _LAZY: dict[str, str] = {
 
 TYPE_CHECKING = False
 if TYPE_CHECKING:
-    from typing import Any
-
     from sim.experiment import SCENARIOS, Experiment, RunResult
     from sim.perturbations import GoalShift, JointVelocityNoise, Push, StartOffset
     from sim.pipeline import ArmJob, JobReport, PushSpec, run_job
@@ -63,18 +60,8 @@ if TYPE_CHECKING:
     from sim.task import OBSERVATION_KEYS, make_environment
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    if not name.startswith("__"):  # ``import sim; sim.loop`` worked when this file imported its modules eagerly
-        try:
-            return importlib.import_module(f"sim.{name}")
-        except ModuleNotFoundError as e:
-            if e.name != f"sim.{name}":
-                raise
-    raise AttributeError(f"module 'sim' has no attribute '{name}'")
+# ``import sim; sim.loop`` worked when this file imported its modules eagerly
+__getattr__ = lazy_getattr("sim", _LAZY)
 
 
 __all__ = [

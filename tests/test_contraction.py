@@ -27,7 +27,7 @@ from lfd.learners.contraction import (
     feasible_rate,
     lipschitz_bound,
 )
-from lfd.learners.flows import BoundedFlow, bounded_flow_numpy
+from lfd.learners.flows import FACTORED_MIN_DIM, BoundedFlow, bounded_flow_numpy
 
 WEAK, STRONG = 0.5, 1.0
 
@@ -44,10 +44,10 @@ def strong(spiral: lfd.DemoSet) -> ContractionField:
     return lfd.train("contraction", spiral, seed=0, progress=False, rate=STRONG)
 
 
-def random_flow(dim: int, seed: int, scale: float, max_condition: float = 100.0) -> BoundedFlow:
+def random_flow(dim: int, seed: int, scale: float, max_condition: float = 100.0, hidden: int = 16) -> BoundedFlow:
     """A flow with random raw parameters of size ``scale`` (the budget still bounds it)."""
     torch.manual_seed(seed)
-    flow = BoundedFlow(dim, 3, 16, 1.5, max_condition).double()
+    flow = BoundedFlow(dim, 3, hidden, 1.5, max_condition).double()
     with torch.no_grad():
         flow.theta.normal_(std=scale)
         flow.w2.normal_(std=scale)
@@ -394,3 +394,203 @@ def test_the_same_seed_gives_the_same_model_in_other_processes(learner: str, opt
     assert runs[0].size > 10
     for other in runs[1:]:
         np.testing.assert_allclose(other, runs[0], rtol=1e-6, atol=1e-12)
+
+
+# ---------------------------------------------------------------- the factored path (d >= FACTORED_MIN_DIM)
+
+def _flow_outputs(flow: BoundedFlow, x: torch.Tensor, v: torch.Tensor, factored: bool
+                  ) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
+    """phi(x), J_phi(x)^-1 v and the parameter gradients of a random linear functional of both."""
+    if factored:
+        y, solve = flow.forward_with_inverse_jacobian(x)
+        f = solve(v)
+    else:
+        y, jac = flow.forward_with_jacobian(x)
+        assert jac is not None
+        f = torch.linalg.solve(jac, v)
+    gen = torch.Generator().manual_seed(1)
+    u, w = (torch.randn(x.shape, generator=gen, dtype=x.dtype) for _ in range(2))
+    params = [p for p in flow.parameters() if p.requires_grad]
+    grads = torch.autograd.grad((y * u).sum() + (f * w).sum(), params, allow_unused=True)
+    return y.detach(), f.detach(), [torch.zeros_like(p) if g is None else g for p, g in zip(params, grads)]
+
+
+# (d, H): 2 d <= H + 1 solves each block's d x d Jacobian, otherwise Woodbury's (H + 1) x (H + 1) system
+@pytest.mark.parametrize("dim, hidden", [(8, 16), (8, 6), (12, 16), (16, 40), (16, 16)])
+@pytest.mark.parametrize("scale", [0.1, 1.0, 3.0])
+def test_the_factored_inverse_jacobian_agrees_with_the_dense_path(dim: int, hidden: int, scale: float) -> None:
+    """phi(x), J_phi(x)^-1 v and their parameter gradients, layer by layer against the dense J_phi
+    and its solve, to 1e-9 relative in float64: random weights of several sizes, points out to
+    |x| = 1e6 (``far_points``) and near the centres."""
+    for seed in range(2):
+        flow = random_flow(dim, seed=100 * seed + dim + hidden, scale=scale, hidden=hidden)
+        x = torch.cat([far_points(dim), flow.center.detach() + 1e-3, torch.zeros(1, dim, dtype=torch.float64)])
+        v = torch.randn(x.shape, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+        y0, f0, g0 = _flow_outputs(flow, x, v, factored=False)
+        y1, f1, g1 = _flow_outputs(flow, x, v, factored=True)
+        assert float((y1 - y0).abs().max()) <= 1e-9 * float(y0.abs().max())
+        assert float((f1 - f0).abs().max()) <= 1e-9 * float(f0.abs().max())
+        for a, b in zip(g0, g1):
+            assert float((b - a).abs().max()) <= 1e-9 * max(float(a.abs().max()), 1e-300)
+        assert float(f0.abs().max()) > 0 and any(float(a.abs().max()) > 0 for a in g0)
+
+
+def test_the_factored_path_needs_a_plane_generator() -> None:
+    with pytest.raises(ValueError, match="d >= 4"):
+        random_flow(3, seed=0, scale=1.0).forward_with_inverse_jacobian(torch.zeros(1, 3, dtype=torch.float64))
+
+
+def test_only_large_dimensions_take_the_factored_path() -> None:
+    config = ContractionConfig()
+    assert FACTORED_MIN_DIM == 8
+    assert not ContractionModule(FACTORED_MIN_DIM - 1, config).factored
+    assert ContractionModule(FACTORED_MIN_DIM, config).factored
+
+
+@pytest.mark.parametrize("samples", [2, 3, 8, 50, 65])
+def test_the_latent_path_by_powers_equals_one_matrix_exponential_per_time(samples: int) -> None:
+    torch.manual_seed(samples)
+    module = ContractionModule(8, ContractionConfig()).double()
+    with torch.no_grad():
+        module.skew.normal_()
+        assert module.damping is not None
+        module.damping.normal_(std=0.5)
+    y0, y_star = torch.randn(3, 8, dtype=torch.float64), torch.randn(1, 8, dtype=torch.float64)
+    step = torch.tensor([0.01, 0.2, 0.05], dtype=torch.float64)
+    t = step[:, None] * torch.arange(samples, dtype=torch.float64)
+    with torch.no_grad():
+        dense = module.latent_trajectory(y0, y_star, t)
+        powers = module.latent_path(y0, y_star, step, samples)
+    assert powers.shape == dense.shape == (3, samples, 8)
+    assert float((powers - dense).abs().max()) <= 1e-12 * float(dense.abs().max())
+
+
+@pytest.mark.parametrize("dim", [8, 16])
+def test_the_factored_field_rollouts_and_loss_agree_with_the_dense_path(dim: int) -> None:
+    """Eq. (C3)'s field at the data and far away, the latent rollouts of Eq. (C5) and the parameter
+    gradients of both (flow, S and P), with ``factored`` on and off, after a few steps of training
+    (so phi is not the identity), to 1e-9 relative; and the loss itself."""
+    from lfd.bench.scaling import stacked_lasa
+    from lfd.learners import normalize_demos
+    from lfd.learners.contraction import _FitData
+
+    demos = stacked_lasa(dim, n_demos=3, n_samples=200)
+    config = ContractionConfig(iterations=8)
+    field = lfd.train("contraction", demos, seed=0, progress=False, iterations=8)
+    module = field.module.requires_grad_(True)              # a trained field's parameters are frozen
+    assert module.factored
+    torch.manual_seed(0)
+    data = _FitData.of(normalize_demos(demos, field.norm), config, torch.float64)
+    x = torch.cat([data.x_in, far_points(dim)[::7]])
+    gen = torch.Generator().manual_seed(dim)
+    w = torch.randn(x.shape, generator=gen, dtype=torch.float64)
+    u = torch.randn(data.n0, data.n_path, dim, generator=gen, dtype=torch.float64)
+    params = list(module.parameters())
+    results = []
+    for factored in (False, True):
+        module.factored = factored
+        f, y, y_star, jac = module.velocity_and_latent(x)
+        assert (jac is None) == factored
+        y0 = y[data.nv:data.nv + data.n0]
+        if factored:
+            path = module.latent_path(y0, y_star, data.tk[:, 1], data.n_path)
+        else:
+            path = module.latent_trajectory(y0, y_star, data.tk)[:, :data.n_path]
+        grads = torch.autograd.grad((f * w).sum() + (path * u).sum(), params)
+        loss = float(data.loss(module, config).detach())
+        results.append((f.detach(), path.detach(), grads, loss))
+    module.factored = True
+    (f0, p0, g0, l0), (f1, p1, g1, l1) = results
+    assert float((f1 - f0).abs().max()) <= 1e-9 * float(f0.abs().max())
+    assert float((p1 - p0).abs().max()) <= 1e-9 * float(p0.abs().max())
+    for a, b in zip(g0, g1):
+        assert float((b - a).abs().max()) <= 1e-9 * max(float(a.abs().max()), 1e-300)
+    # the loss's direction term divides by |f|, which is tiny at demo points near the goal, so rounding
+    # alone moves the loss far more than the field (the dense path with and without gradients differs
+    # by as much): a looser tolerance
+    assert abs(l1 - l0) <= 1e-6 * abs(l0)
+
+
+def test_training_in_large_dimensions_is_deterministic_for_a_seed() -> None:
+    from lfd.bench.scaling import stacked_lasa
+
+    demos = stacked_lasa(8, n_demos=3, n_samples=200)
+    a, b = (lfd.train("contraction", demos, seed=3, progress=False, iterations=10) for _ in range(2))
+    assert a.module.factored
+    sa, sb = a.module.state_dict(), b.module.state_dict()
+    assert all(torch.equal(sa[k], sb[k]) for k in sa)
+    assert a.history["loss"] == b.history["loss"]
+
+
+# ---------------------------------------------------------------- the cache of the scaled parameters
+
+def _same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k].detach(), b[k].detach()) for k in a)
+
+
+def test_scaled_parameters_are_cached_without_gradients_and_invalidated_by_changes() -> None:
+    flow = random_flow(4, seed=5, scale=1.0)
+    x = torch.randn(30, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    with torch.no_grad():
+        first = flow.scaled()
+        assert flow.scaled()["w2"] is first["w2"]                 # cached
+        y_cached, jac_cached = flow.forward_with_jacobian(x)
+        flow.clear_cache()
+        assert _same(flow.scaled(), first)                         # computed again: the same bits
+        assert flow.scaled()["w2"] is not first["w2"]
+        y_again, jac_again = flow.forward_with_jacobian(x)
+        assert jac_cached is not None and jac_again is not None
+        assert torch.equal(y_again, y_cached) and torch.equal(jac_again, jac_cached)
+    # gradients needed: computed on every call (eigvalsh then also finds eigenvectors, so the last bits
+    # may differ from the gradient-free values)
+    live = flow.scaled()
+    assert live["w2"] is not first["w2"] and live["w2"].requires_grad and live["w2"] is not flow.scaled()["w2"]
+    assert all(torch.allclose(live[k].detach(), first[k], rtol=1e-12, atol=0) for k in first)
+    y_live, jac_live = flow.forward_with_jacobian(x)
+    assert jac_live is not None
+    assert torch.allclose(y_live.detach(), y_cached, rtol=1e-12, atol=1e-14)
+    assert torch.allclose(jac_live.detach(), jac_cached, rtol=1e-12, atol=1e-14)
+    before = {k: v.clone() for k, v in flow.state_dict().items()}
+
+    # an optimiser step invalidates it
+    opt = torch.optim.SGD(flow.parameters(), lr=0.05)
+    opt.zero_grad()
+    (y_live ** 2).sum().backward()
+    opt.step()
+    with torch.no_grad():
+        stepped = flow.scaled()
+        assert not _same(stepped, first)
+        assert _same(stepped, flow._scaled())
+        assert flow.scaled()["w2"] is stepped["w2"]
+
+    # so does load_state_dict
+    flow.load_state_dict(before)
+    with torch.no_grad():
+        restored = flow.scaled()
+        assert restored["w2"] is not stepped["w2"]
+        assert _same(restored, first)
+        y_back, _ = flow.forward_with_jacobian(x)
+    assert torch.equal(y_back, y_cached)
+
+    # and so do an in-place write, a dtype conversion and clear_cache
+    with torch.no_grad():
+        flow.theta.mul_(0.5)
+        assert _same(flow.scaled(), flow._scaled()) and not _same(flow.scaled(), first)
+        flow.float()
+        assert flow.scaled()["w2"].dtype == torch.float32
+        cached = flow.scaled()
+        flow.clear_cache()
+        assert flow.scaled()["w2"] is not cached["w2"]
+
+
+def test_a_trained_model_gives_the_same_field_with_and_without_the_cache(weak: ContractionField) -> None:
+    module = weak.module
+    x = torch.tensor(weak.norm.to_norm(np.random.default_rng(0).normal(size=(50, 2)) * 30.0))
+    with torch.no_grad():
+        module.flow.clear_cache()
+        fresh = module(x)
+        assert "_scaled_cache" in module.flow.__dict__
+        cached = module(x)
+        params = module.flow._scaled()
+    assert torch.equal(cached, fresh)
+    assert _same(module.flow.scaled(), params)    # frozen parameters need no gradient: cached

@@ -42,7 +42,7 @@ from tqdm.auto import tqdm
 from lfd.demos import DemoSet
 from lfd.field import ContractingField, VelocityField
 from lfd.learners.base import Learner
-from lfd.learners.flows import SWIRL_COMPONENTS, BoundedFlow, bounded_flow_numpy
+from lfd.learners.flows import FACTORED_MIN_DIM, SWIRL_COMPONENTS, BoundedFlow, bounded_flow_numpy
 from lfd.threads import torch_threads
 from lfd.validate import check_bools, check_ints
 
@@ -128,11 +128,19 @@ class ContractionConfig:
 
 
 class ContractionModule(nn.Module):
-    """f_n of Eq. (C3) on normalised coordinates: x_n, shape (B, d) -> dx_n/dt, shape (B, d)."""
+    """f_n of Eq. (C3) on normalised coordinates: x_n, shape (B, d) -> dx_n/dt, shape (B, d).
+
+    ``factored`` (True from d = ``FACTORED_MIN_DIM`` on) selects how Eq. (C3) and the loss's latent
+    rollouts are computed, never what they are: J_phi^-1 applied layer by layer
+    (``BoundedFlow.forward_with_inverse_jacobian``) and the rollouts' evenly spaced matrix
+    exponentials as powers of one (``latent_path``), instead of the dense J_phi, its solve and one
+    matrix exponential per time. Both agree to rounding; smaller d keep the dense path.
+    """
 
     def __init__(self, dim: int, config: ContractionConfig) -> None:
         super().__init__()
         self.dim = dim
+        self.factored = dim >= FACTORED_MIN_DIM
         self.rate = config.rate
         self.flow = BoundedFlow(dim, config.layers, config.hidden, config.window, config.max_condition,
                                 config.length_scale)
@@ -179,10 +187,17 @@ class ContractionModule(nn.Module):
         return self.velocity_and_latent(x)[0]
 
     def velocity_and_latent(self, x: torch.Tensor
-                            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+                            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """f(x) of Eq. (C3), shape (B, d), with y = phi(x), shape (B, d), y* = phi(0), shape (1, d),
-        and J_phi(x), shape (B, d, d)."""
-        y, jac = self.flow.forward_with_jacobian(torch.cat([x, x.new_zeros(1, self.dim)]))
+        and J_phi(x), shape (B, d, d) (None when ``factored``: J_phi^-1 is then applied layer by
+        layer, never formed)."""
+        x1 = torch.cat([x, x.new_zeros(1, self.dim)])
+        if self.factored:
+            y, solve = self.flow.forward_with_inverse_jacobian(x1)
+            y, y_star = y[:-1], y[-1:]
+            v = (y - y_star) @ self.latent_matrix().T          # A (phi(x) - y*)
+            return solve(torch.cat([v, v.new_zeros(1, self.dim)]))[:-1], y, y_star, None
+        y, jac = self.flow.forward_with_jacobian(x1)
         assert jac is not None
         y, y_star, jac = y[:-1], y[-1:], jac[:-1]
         v = (y - y_star) @ self.latent_matrix().T              # A (phi(x) - y*)
@@ -199,6 +214,23 @@ class ContractionModule(nn.Module):
         at = self.latent_matrix() * t.reshape(-1, 1, 1)                             # (N K, d, d)
         e = torch.linalg.matrix_exp(at).reshape(*t.shape, self.dim, self.dim)      # (N, K, d, d)
         return y_star + (e @ (y0 - y_star)[:, None, :, None]).squeeze(-1)          # (N, K, d)
+
+    def latent_path(self, y0: torch.Tensor, y_star: torch.Tensor, step: torch.Tensor, samples: int) -> torch.Tensor:
+        """y(j step_n) of Eq. (C2), j = 0..samples - 1, shape (N, samples, d), from latent starts y0,
+        shape (N, d), with time steps step, shape (N,).
+
+        ``latent_trajectory`` at the evenly spaced times j step_n, without a matrix exponential per
+        time: exp(A j dt) = exp(A dt)^j, applied by doubling (the samples [m, 2m) are E^m applied to
+        the samples [0, m), then E^m is squared): one matrix exponential and about log2(samples)
+        d x d products per demo.
+        """
+        e = torch.linalg.matrix_exp(self.latent_matrix() * step.reshape(-1, 1, 1))    # E = exp(A dt), (N, d, d)
+        ys = (y0 - y_star)[:, None, :]                                                 # (N, 1, d)
+        while ys.shape[1] < samples:
+            ys = torch.cat([ys, ys[:, :samples - ys.shape[1]] @ e.transpose(1, 2)], 1)
+            if ys.shape[1] < samples:
+                e = e @ e
+        return y_star + ys
 
     @torch.no_grad()
     def trajectory(self, x0: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
@@ -497,8 +529,12 @@ class _FitData:
             loss = loss + config.speed_weight * (self.w * (0.5 * torch.log(f2) - self.v_log) ** 2).mean()
         if config.traj_weight > 0:
             z = y[nv + n0:].reshape(n0, self.nk, -1)                         # phi(x_demo(t_k)), (N, K, d)
-            roll = module.latent_trajectory(y[nv:nv + n0], y_star, self.tk)   # (N, J + nr, d)
-            path, rest = roll[:, :self.n_path], roll[:, self.n_path:]
+            if module.factored:      # the same rollout: the path's evenly spaced times as powers of one step
+                path = module.latent_path(y[nv:nv + n0], y_star, self.tk[:, 1], self.n_path)
+                rest = module.latent_trajectory(y[nv:nv + n0], y_star, self.tk[:, self.n_path:])
+            else:
+                roll = module.latent_trajectory(y[nv:nv + n0], y_star, self.tk)   # (N, J + nr, d)
+                path, rest = roll[:, :self.n_path], roll[:, self.n_path:]
             dist = ((path[:, :, None, :] - z[:, None, :, :]) ** 2).sum(-1)   # (N, J, K)
             chamfer = dist.min(2).values.mean() + dist.min(1).values.mean()
             arrive = ((path[:, -1] - z[:, -1]) ** 2).sum(-1).mean()

@@ -29,8 +29,9 @@ diffeomorphic reduction for learning stable dynamical systems. L4DC, PMLR 120. a
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -43,6 +44,9 @@ _REL = 1e-12                               # relative margin on computed norms (
 MAX_BLOCK_LIP = 0.97                       # a residual block's cap: the fixed-point inverse still converges
 SWIRL_COMPONENTS = 4
 RHO_MIN, RHO_MAX = 0.1, 3.0                # swirl widths (normalised units): bounded curvature, bounded reach
+#: from this dimension on the contraction field applies J_phi^-1 layer by layer
+#: (``BoundedFlow.forward_with_inverse_jacobian``) instead of forming the dense J_phi (``forward_with_jacobian``)
+FACTORED_MIN_DIM = 8
 
 
 def shear_sigma_max(m: float | np.ndarray) -> float | np.ndarray:
@@ -131,7 +135,41 @@ class BoundedFlow(nn.Module):
         return 2 * torch.sinh(beta[0::2] / 2), torch.tanh(beta[1::2] / 2).clamp_max(MAX_BLOCK_LIP)
 
     def scaled(self) -> dict[str, torch.Tensor]:
-        """The effective parameters and per-layer bounds of Eqs. (F2)-(F4)."""
+        """The effective parameters and per-layer bounds of Eqs. (F2)-(F4).
+
+        Returns a dict of tensors: ``theta`` (L, J), ``rho`` (L, J), ``m`` (L,), ``w2`` (L, d, H),
+        ``c``, ``h0``, ``h1``, ``h2`` (L,), and ``axis`` (L, 3) for d = 3 or ``gen`` (L, d, d) for d >= 4.
+        While no gradient is needed (``torch.no_grad``, or no parameter requires one) the result is
+        cached, keyed by every parameter's storage, version counter, dtype, device and shape: an
+        optimiser step, ``load_state_dict``, any in-place write through the parameter or a dtype
+        conversion invalidates it. (A write through ``param.data`` bypasses the version counter: call
+        ``clear_cache`` after one.) With gradients needed it is recomputed on every call.
+        """
+        params = list(self.parameters())
+        if (torch.is_grad_enabled() and any(p.requires_grad for p in params)) \
+                or torch.is_inference_mode_enabled():
+            return self._scaled()
+        key = tuple((p.data_ptr(), p._version, p.dtype, p.device, tuple(p.shape)) for p in params)
+        cache = self.__dict__.get("_scaled_cache")
+        if cache is not None and cache[0] == key:
+            return dict(cache[2])
+        out = self._scaled()
+        # the detached references keep the storages alive, so no other tensor can reuse their addresses
+        self.__dict__["_scaled_cache"] = (key, [p.detach() for p in params], out)
+        return dict(out)
+
+    def clear_cache(self) -> None:
+        """Forget the cached ``scaled`` parameters."""
+        self.__dict__.pop("_scaled_cache", None)
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The module's state without the cache of ``scaled``."""
+        state = dict(super().__getstate__())
+        state.pop("_scaled_cache", None)
+        return state
+
+    def _scaled(self) -> dict[str, torch.Tensor]:
+        """``scaled`` computed now (never cached)."""
         m_cap, c_cap = self.caps()
         # swirls: raw slope S = (2/e) sum |Theta_j| (smooth |.|), scaled below its cap
         abs_theta = torch.sqrt(self.theta ** 2 + _EPS)
@@ -237,6 +275,66 @@ class BoundedFlow(nn.Module):
             x = x + env[:, None] * h
         return x, jac
 
+    def forward_with_inverse_jacobian(self, x: torch.Tensor
+                                      ) -> tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
+        """y = phi(x), shape (B, d), and v -> J_phi(x)^-1 v for v of shape (B, d), without forming J_phi.
+
+        The same values as ``forward_with_jacobian`` followed by a solve with J_phi (to rounding), for
+        d >= 4 (a swirl turns a 2-plane), without the O(B d^3) products of the dense chain: O(B (H^3 + d H))
+        work per block once 2 d > H + 1, linear in d for a fixed hidden width H. J_phi = J_2L ... J_1
+        (Eq. (F4)), so J_phi^-1 v applies the layers' inverses in reverse order:
+
+        - swirl, Eq. (F1): J = R (I + q Kz z'), and z' K z = 0 (K skew), so
+          J^-1 = (I - q Kz z') R', with R' u = u - sin(ang) K u + (1 - cos(ang)) K^2 u by Rodrigues and
+          K u = b (a'u) - a (b'u), K^2 u = -a (a'u) - b (b'u) for the plane's orthonormal a, b: O(d);
+        - residual block, Eq. (F3): J = I + U V', U = e(x) [W2 diag(1 - tanh^2), -h / R^2] (d, H + 1),
+          V = [W1', x] (d, H + 1), so by Woodbury J^-1 v = v - U (I + V'U)^-1 V'v: an (H + 1) x (H + 1)
+          solve per point, whose matrix I + V'U is built from the shared H x H product W1 W2 (its
+          determinant is det J, which the singular-value bound 1 - c > 0 of Eq. (F3) keeps from zero);
+          while 2 d <= H + 1, the block's own d x d Jacobian is solved instead (the smaller work).
+
+        Parameters
+        ----------
+        x : tensor, shape (B, d)
+            Points, d >= 4.
+
+        Returns
+        -------
+        y : tensor, shape (B, d)
+            phi(x).
+        solve : callable
+            v (B, d) -> J_phi(x)^-1 v (B, d), differentiable in v and in the parameters.
+        """
+        if self.dim < 4:
+            raise ValueError(f"forward_with_inverse_jacobian needs d >= 4, got {self.dim}")
+        p = self.scaled()
+        a_vec, b_vec = plane_basis(cast(torch.Tensor, self.plane))           # (L, d) each
+        inv_r2 = 1.0 / self.window ** 2
+        steps: list[Callable[[torch.Tensor], torch.Tensor]] = []
+        for k in range(self.n_pairs):
+            z = x - self.center[k]
+            ang, q = self._angle(p, k, (z * z).sum(1))
+            cs, sn = torch.cos(ang)[:, None], torch.sin(ang)[:, None]
+            a, b = a_vec[k], b_vec[k]
+            za, zb = z @ a, z @ b                                            # (B,)
+            kz = b * za[:, None] - a * zb[:, None]                           # K z
+            k2z = -(a * za[:, None] + b * zb[:, None])                       # K^2 z
+            x = self.center[k] + z + sn * kz + (1 - cs) * k2z                # c + R z, Eq. (F1)
+            steps.append(_swirl_inverse(a, b, cs, sn, q, z, kz))
+            env = torch.exp(-0.5 * (x * x).sum(1) * inv_r2)                  # (B,)
+            th = torch.tanh(torch.addmm(self.b1[k], x, self.w1[k].T))        # (B, H)
+            w2 = p["w2"][k]                                                  # (d, H)
+            h = th @ w2.T                                                    # (B, d)
+            steps.append(_block_inverse(self.w1[k], w2, x, env, th, h, inv_r2))
+            x = x + env[:, None] * h                                         # Eq. (F3)
+
+        def solve(v: torch.Tensor) -> torch.Tensor:
+            for step in reversed(steps):
+                v = step(v)
+            return v
+
+        return x, solve
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """y = phi(x); x : tensor, shape (B, d)."""
         return self.forward_with_jacobian(x, jacobian=False)[0]
@@ -284,15 +382,74 @@ class BoundedFlow(nn.Module):
         return out
 
 
-def plane_generators(plane: torch.Tensor) -> torch.Tensor:
-    """K_k = b a^T - a b^T, shape (L, d, d), from two vectors per layer, plane of shape (L, 2, d):
-    a = u / |u|, b = the unit part of v orthogonal to a (Gram-Schmidt). K_k^3 = -K_k, so
-    exp(ang K) = I + sin(ang) K + (1 - cos(ang)) K^2 (Rodrigues), a rotation in span(a, b)."""
+def plane_basis(plane: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The orthonormal pair (a, b), shapes (L, d) each, of the swirls' planes, plane of shape (L, 2, d):
+    a = u / |u|, b = the unit part of v orthogonal to a (Gram-Schmidt)."""
     u, v = plane[:, 0], plane[:, 1]
     a = u / torch.sqrt((u * u).sum(1, keepdim=True) + _EPS)
     w = v - (v * a).sum(1, keepdim=True) * a
     b = w / torch.sqrt((w * w).sum(1, keepdim=True) + _EPS)
+    return a, b
+
+
+def plane_generators(plane: torch.Tensor) -> torch.Tensor:
+    """K_k = b a^T - a b^T, shape (L, d, d), from two vectors per layer, plane of shape (L, 2, d)
+    (``plane_basis``). K_k^3 = -K_k, so exp(ang K) = I + sin(ang) K + (1 - cos(ang)) K^2 (Rodrigues),
+    a rotation in span(a, b)."""
+    a, b = plane_basis(plane)
     return b[:, :, None] * a[:, None, :] - a[:, :, None] * b[:, None, :]
+
+
+def _swirl_inverse(a: torch.Tensor, b: torch.Tensor, cs: torch.Tensor, sn: torch.Tensor, q: torch.Tensor,
+                   z: torch.Tensor, kz: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
+    """v -> J^-1 v, shapes (B, d), for a swirl's J = R (I + q Kz z') (Eq. (F1), d >= 4):
+    (I - q Kz z') R' v, O(d) per point (``BoundedFlow.forward_with_inverse_jacobian``).
+
+    a, b : (d,), the plane's orthonormal pair; cs, sn : (B, 1), cos and sin of the angle;
+    q : (B,), theta'(r) / r; z : (B, d), the point relative to the centre; kz : (B, d), K z.
+    """
+    def inverse(v: torch.Tensor) -> torch.Tensor:
+        va, vb = (v @ a)[:, None], (v @ b)[:, None]
+        u = v - sn * (b * va - a * vb) - (1 - cs) * (a * va + b * vb)      # R' v = exp(-ang K) v
+        return u - (q * (z * u).sum(1))[:, None] * kz
+
+    return inverse
+
+
+def _block_inverse(w1: torch.Tensor, w2: torch.Tensor, x: torch.Tensor, env: torch.Tensor, th: torch.Tensor,
+                   h: torch.Tensor, inv_r2: float) -> Callable[[torch.Tensor], torch.Tensor]:
+    """v -> J^-1 v, shapes (B, d), for a residual block's J = I + e(x) (W2 diag(1 - th^2) W1 - h x' / R^2)
+    (Eq. (F3)): while 2 d <= H + 1 by a d x d solve with J, else by Woodbury: J = I + U V' with
+    U = e [W2 diag(1 - th^2), -h / R^2], V = [W1', x], so J^-1 v = v - U (I + V'U)^-1 V'v, an
+    (H + 1) x (H + 1) solve per point.
+
+    w1 : (H, d); w2 : (d, H), scaled; x : (B, d), the block's input; env : (B,), e(x);
+    th : (B, H), tanh(W1 x + b1); h : (B, d), W2 th; inv_r2 : 1 / R^2.
+    """
+    n_hidden = th.shape[1]
+    ds = 1 - th * th                                                       # (B, H)
+    if 2 * x.shape[1] <= n_hidden + 1:
+        # 2 d <= H + 1: the block's own d x d Jacobian (one d x H x d product per point) costs less
+        # than the (H + 1) x (H + 1) system
+        jg = (w2 * ds[:, None, :]) @ w1 - h[:, :, None] * (x[:, None, :] * inv_r2)             # (B, d, d)
+        jac = torch.eye(x.shape[1], dtype=x.dtype, device=x.device) + env[:, None, None] * jg
+
+        def dense_inverse(v: torch.Tensor) -> torch.Tensor:
+            return torch.linalg.solve(jac, v)
+
+        return dense_inverse
+    g = w1 @ w2                                                            # W1 W2, (H, H)
+    top = torch.cat([g * ds[:, None, :], -(th @ g.T)[:, :, None] * inv_r2], 2)          # W1 U / e, (B, H, H + 1)
+    bottom = torch.cat([(x @ w2) * ds, -(x * h).sum(1, keepdim=True) * inv_r2], 1)      # x'U / e, (B, H + 1)
+    cap = env[:, None, None] * torch.cat([top, bottom[:, None, :]], 1)                  # V'U, (B, H + 1, H + 1)
+    cap = cap + torch.eye(n_hidden + 1, dtype=x.dtype, device=x.device)
+
+    def inverse(v: torch.Tensor) -> torch.Tensor:
+        vt_v = torch.cat([v @ w1.T, (x * v).sum(1, keepdim=True)], 1)     # V'v, (B, H + 1)
+        u = torch.linalg.solve(cap, vt_v)
+        return v - env[:, None] * ((ds * u[:, :n_hidden]) @ w2.T - h * (u[:, n_hidden:] * inv_r2))
+
+    return inverse
 
 
 def bounded_flow_numpy(params: list[dict[str, np.ndarray | float]], x: np.ndarray

@@ -140,10 +140,25 @@ def main(argv: list[str] | None = None) -> int:
     lines = report(result.records, a.placements)
     if result.failed:
         lines += ["", f"Failed cells: {result.failed}"]
+    lines += kept_cost_section(Path(a.report))
     with atomic_path(Path(a.report)) as tmp:
         tmp.write_text("\n".join(lines) + "\n")
     print(f"wrote {a.report}")
     return 0
+
+
+#: the report's hand-written section (``scripts/speed_arm_clearance.py``'s measurements), kept on a rewrite
+COST_HEADING = "## What whole-arm clearance costs per control step"
+
+
+def kept_cost_section(path: Path) -> list[str]:
+    """The lines of ``path`` from ``COST_HEADING`` on (with a blank line before), or none."""
+    if not path.exists():
+        return []
+    old = path.read_text().splitlines()
+    if COST_HEADING not in old:
+        return []
+    return [""] + old[old.index(COST_HEADING):]
 
 
 def report(recs: list[dict], placements: int) -> list[str]:

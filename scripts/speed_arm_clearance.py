@@ -7,7 +7,9 @@ variants of the same run, interleaved ``--repeats`` times:
 
 * ``bare``: no obstacles, the plain field (today's loop);
 * ``tool point``: the obstacles in the scene and the field, no dampers (``clearance=None``);
-* ``whole arm``: the default, the dampers of ``sim.collision`` and the QP of ``robots.ik.constrained``.
+* ``whole arm``: the default, the dampers of ``sim.collision`` and the QP of ``robots.ik.constrained``
+  (split ``mj_step1``/``mj_step2``; each step checks the dampers against the DLS step with
+  ``ArmClearance.check`` and solves the QP only where one binds).
 
 Per variant: the median control step (wall, the loop's own timer), its 95th percentile, the share
 of steps with a pair within the dampers' reach and with a damper at its bound, and the real-time

@@ -59,7 +59,7 @@ def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict
     m, d = env.physics.model.ptr, env.physics.data.ptr
     ctl, f = task.controller, field.single_point_evaluator()
     qadr = exp.robot.mj_qpos_adr
-    split = ctl.uses_mj_dynamics
+    split = ctl.split
     names = ("mj_step1", "read state", "FK (Pinocchio)", "field f(x)", "twist+IK+command", "mj_step2")
     steps = min(steps, task.n_steps)
     t = {k: np.empty(steps) for k in names}
@@ -143,7 +143,7 @@ def interleaved_steps(exp: sim.Experiment, field: lfd.VelocityField, blocks: int
                                       **exp.options) for _ in range(2))
     task, clock = twin.task, time.perf_counter
     ctl, qadr, dadr, n = task.controller, exp.robot.mj_qpos_adr, exp.robot.mj_dof_adr, exp.robot.n
-    split = ctl.uses_mj_dynamics
+    split = ctl.split
     measure = ctl.measure_site if split else ctl.measure
     n_sub = int(round(task.control_dt / twin.physics.model.opt.timestep))
     K = task.n_steps

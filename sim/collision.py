@@ -17,6 +17,15 @@ k and never crosses it. A moving obstacle is taken as still at each step (its ow
 in the row). A pair beyond d_i adds nothing, so far from everything the IK is the plain one (the
 compiled DLS fast path).
 
+Each control step first asks whether any damper binds for the plain IK's joint velocities
+(``ArmClearance.check``; the QP is solved only where one does, with every row of ``rows``). That
+check measures a pair with ``mj_geomDistance`` only where a certified lower bound on its distance
+leaves its row able to bind: the broad phase's bound, or the distance measured at an earlier step
+less how far any point of either geom has moved since (the geoms are rigid: that distance cannot
+shrink faster), against a bound on |n^T (J_1 - J_2) qdot| from the geoms' bounding spheres. It
+decides as the rows would, and the smallest distance it reports is the rows' (pairs whose bound
+lies below the smallest measured distance are measured as well).
+
 The pairs: every geom an arm joint moves against every obstacle (geoms named ``obstacle_<i>``,
 ``sim.obstacles``) and the table top, except the links within ``SELF_SKIP`` links of the world
 against the table they stand on; and geoms of the robot against each other (one of them moved by
@@ -218,6 +227,7 @@ class ArmClearance:
                       np.ascontiguousarray(model.dof_parentid, dtype=np.int64))
         self._fromto = np.zeros(6)
         self._kernels = _kernels()
+        self._fn = self._kernels[3]
         self._g1 = np.array([p[0] for p in pairs], dtype=np.int64)
         self._g2 = np.array([p[1] for p in pairs], dtype=np.int64)
         self._mutual = np.array([p[2] for p in pairs], dtype=np.bool_)
@@ -225,9 +235,44 @@ class ArmClearance:
         self._d = np.empty(len(pairs))
         self._which = np.zeros(len(pairs), dtype=np.int64)
         self._no_rows = (np.zeros((0, len(self.dofs))), np.zeros(0))
+        self._ints, self._floats, self._state = self._pack(model)
+        self._bound: tuple[Any, ...] | None = None
+        self.reset()
         self.min_distance = math.inf
         self._closest: tuple[int, int] | None = None
         self.rows(data)   # compile the kernels now, not in a run's first step
+        self.check(data, np.zeros(len(self.dofs)))
+        self.reset()
+
+    def _pack(self, model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The constants and state of ``sim._collision_kernel.guard_check``: ints (the header
+        G, P and the offsets of the geoms (G,), the pairs' a, b, g1, g2 and mutual (P,), the geoms'
+        bodies (ngeom,) and the tree: body_rootid, body_dofnum, body_dofadr, body_parentid (nbody,),
+        dof_parentid and the arm column of each dof (nv,)), floats (k, d_s, d_i, the bounding
+        boxes' centres and half sizes (G, 3), the spheres' radii (G,), the slab tops (P,)) and the
+        state (outputs, fromto (6,), scratch, the cache: d_0 (P,), c_0 and R_0 of both geoms
+        (P, 24), the skipped pairs (P, 2))."""
+        G, P = len(self._geoms), len(self.pairs)
+        parts = [self._geoms, self._a, self._b, self._g1, self._g2, self._mutual.astype(np.int64), self._body,
+                 *self._tree[:4], self._tree[4], self._column]
+        offsets, at = [], 15
+        for part in parts:
+            offsets.append(at)
+            at += len(part)
+        body_off = offsets[6]
+        header = np.array([G, P, *offsets[:6], body_off, *offsets[7:13]], dtype=np.int64)
+        ints = np.concatenate([header, *[np.asarray(x, dtype=np.int64) for x in parts]])
+        spec = self.spec
+        floats = np.concatenate([[spec.rate, spec.safety_m, spec.influence_m], self._centre.ravel(),
+                                 self._half.ravel(), self._radius, self._slab]).astype(np.float64)
+        state = np.zeros(10 + 8 * G + 27 * P)
+        return ints, floats, state
+
+    def reset(self) -> None:
+        """Forget the cached distances of ``check`` (none is needed for its bounds to hold; a new
+        run starts with an empty cache) and ``min_distance``."""
+        G, P = len(self._geoms), len(self.pairs)
+        self._state[10 + 8 * G:10 + 8 * G + P] = -np.inf
         self.min_distance, self._closest = math.inf, None
 
     @property
@@ -243,9 +288,35 @@ class ArmClearance:
                                  self._radius, self._a, self._b, self._slab, self.spec.influence_m, self._idx)
         return self._idx[:count]
 
+    def check(self, data: mujoco.MjData, qdot: np.ndarray) -> bool:
+        """Whether a damper row binds for the joint velocities qdot, shape (n,), at the state of
+        ``data`` (kinematics and ``mj_comPos`` current): True if some pair within d_i has
+        n^T (J_1 - J_2) qdot > k (d - d_s), Eq. (A1), exactly as for the rows of ``rows(data)``.
+
+        Cheaper than ``rows``: a pair's exact distance (``mj_geomDistance``) is computed only
+        where a certified lower bound on it (the broad phase's, or the distance cached at an earlier
+        call less how far either geom has moved since) leaves its row able to bind for this qdot
+        (``sim._collision_kernel.guard_check``). Without a binding row it sets ``min_distance`` and
+        ``closest`` as ``rows`` does (pairs whose bound lies below the smallest exact distance are
+        measured too, so the minimum is exact); with one it leaves them, and the caller takes
+        ``rows(data)`` for the QP."""
+        if not self.pairs:
+            self.min_distance, self._closest = math.inf, None
+            return False
+        b = self._bound
+        if b is None or b[0] is not data:
+            b = self._bound = (data, data._address, data.geom_xpos, data.geom_xmat, data.cdof, data.subtree_com)
+        st = self._state
+        if self._kernels[2](self._fn, self.model._address, b[1], b[2], b[3], b[4], b[5], qdot, self._ints,
+                            self._floats, st):
+            return True
+        self.min_distance = float(st[0])
+        self._closest = None if st[1] < 0 else self.pairs[int(st[1])][:2]
+        return False
+
     @property
     def closest(self) -> str:
-        """The geom names of the pair at ``min_distance`` in the last ``rows`` call ("" if none)."""
+        """The geom names of the pair at ``min_distance`` in the last ``rows`` or ``check`` call ("" if none)."""
         if self._closest is None:
             return ""
         return f"{self.names[self._closest[0]]} / {self.names[self._closest[1]]}"
@@ -259,7 +330,7 @@ class ArmClearance:
         if not cand.size:
             self.min_distance, self._closest = math.inf, None
             return self._no_rows
-        count = self._kernels[1](self.model._address, data._address, cand, cand.size, self._g1, self._g2,
+        count = self._kernels[1](self._fn, self.model._address, data._address, cand, cand.size, self._g1, self._g2,
                                  self._mutual, spec.influence_m, data.geom_xpos, self._body, data.cdof,
                                  data.subtree_com, *self._tree, self._column, self._fromto, self._A, self._d,
                                  self._which)
@@ -273,14 +344,15 @@ class ArmClearance:
         return self._A[:count].copy(), spec.rate * (dd - spec.safety_m)
 
 
-_KERNELS: tuple[Any, Any] | None = None
+_KERNELS: tuple[Any, Any, Any, int] | None = None
 
 
-def _kernels() -> tuple[Any, Any]:
-    """(broadphase, pair_rows) of ``sim._collision_kernel`` (numba is imported on first use)."""
+def _kernels() -> tuple[Any, Any, Any, int]:
+    """(broadphase, pair_rows, guard_check, the address of ``mj_geomDistance``) of
+    ``sim._collision_kernel`` (numba is imported on first use)."""
     global _KERNELS
     if _KERNELS is None:
-        from sim._collision_kernel import broadphase, pair_rows
+        from sim._collision_kernel import GEOM_DISTANCE, broadphase, guard_check, pair_rows
 
-        _KERNELS = (broadphase, pair_rows)
+        _KERNELS = (broadphase, pair_rows, guard_check, GEOM_DISTANCE)
     return _KERNELS

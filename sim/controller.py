@@ -114,6 +114,15 @@ class FieldController:
         solves the IK as the QP of ``robots.ik.constrained`` with one velocity damper per pair;
         ``guard`` is the ``ArmClearance``, ``guard_active`` whether the last step's QP had a damper
         at its bound. Needs ``model`` and ``data`` (``fast_command``).
+
+    Attributes
+    ----------
+    split : bool
+        The loop runs ``mj_step1`` before ``measure_site`` and the command and ``mj_step2`` after
+        it (``sim.loop``): for computed torque from MuJoCo's dynamics (M(q) and the bias forces of
+        this state), and for whole-arm clearance (MuJoCo's poses of this state for the dampers)
+        unless the integrator is RK4 (whose ``mj_step`` is not ``mj_step1`` + ``mj_step2``) or
+        the scene has mocap bodies (moving obstacles, placed after the command).
     """
 
     def __init__(self, robot: RobotModel, placement: Placement, control_dt: float, ik: str = "dls",
@@ -148,6 +157,10 @@ class FieldController:
                                "a damper would overshoot its safety distance in one step")
             own = self.ik._impl.gains   # DlsGains or PinkGains: the QP keeps the IK's posture and limits
             self.guard = ArmClearance(model, robot, clearance)
+            self._prev = np.zeros(robot.n)
+            # the loop then runs mj_step1 before the command: MuJoCo's poses for the dampers come free
+            if model.opt.integrator != mujoco.mjtIntegrator.mjINT_RK4 and model.nmocap == 0:
+                self.split = True
             self._cik = ConstrainedIK(robot, tuple(self.ik.rows), self.kin, QpGains(
                 posture_gain=own.posture_gain, limit_margin=own.limit_margin, speed_fraction=own.speed_fraction))
 
@@ -191,6 +204,7 @@ class FieldController:
         parameters and the compiled kernel."""
         n, nv = self.robot.n, model.nv
         self.uses_mj_dynamics = self._torque and self.dynamics == "mujoco"
+        self.split = self.uses_mj_dynamics
         self._fast = ik == "dls" and tuple(self.ik.rows) == tuple(range(len(self.ik.rows)))
         self._nv = nv
         self._out = np.zeros(2 * n + nv)
@@ -334,20 +348,23 @@ class FieldController:
 
     def fast_command(self, model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray, v: np.ndarray) -> None:
         """Write ``data.ctrl`` for task velocity v, shape (d,), at the measured q, shape (n,)
-        (``measure(q)`` called; with ``uses_mj_dynamics`` the step's ``mj_step1`` done): twist, DLS
-        and command in one compiled call, else the Python path (same results, module docstring)."""
+        (``measure(q)`` called; with ``split`` the step's ``mj_step1`` done): twist, DLS and
+        command in one compiled call, else the Python path (same results, module docstring). With
+        whole-arm clearance the dampers are checked against the DLS's qdot_ref
+        (``ArmClearance.check``); where one binds, or the compiled call hands back, the IK is the QP
+        with every damper row within reach (``ArmClearance.rows``)."""
         v = self.lead(v)
-        rows = None
-        if self.guard is not None:
-            if not self.uses_mj_dynamics:   # no mj_step1 this step: MuJoCo's poses are the last step's
+        guard = self.guard
+        if guard is not None:
+            if not self.split:   # no mj_step1 this step: MuJoCo's poses are the last step's
                 mujoco.mj_kinematics(model, data)
                 mujoco.mj_comPos(model, data)
-            A, b = self.guard.rows(data)
             self.guard_active = False
-            rows = (A, b) if len(b) else None
-        if rows is not None and not self._fast_ok:
-            self._guarded(model, data, q, v, *rows)
-            return
+            if not self._fast_ok:
+                A, b = guard.rows(data)
+                if len(b):
+                    self._guarded(model, data, q, v, A, b)
+                    return
         if self._fast_ok:
             if data is not self._data:
                 self.bind(data)
@@ -356,14 +373,19 @@ class FieldController:
             else:
                 _, pos, rot = self.kin._pose or self.kin._placement()
             vk = self.pose_twist(v) if self._pose else v
-            if rows is not None:
-                prev = self._qdot_prev.copy()
+            if guard is not None and self._torque:
+                self._prev[:] = self._qdot_prev
             status = self._kernel(self.kin._jac, pos, rot, vk, q, self._qvel, self._bias, self._qdot_prev,
                                   self._prm, self._out)
-            if rows is not None and (status != 0 or np.any(rows[0].dot(self._qdot_ref) > rows[1])):
-                self._qdot_prev = prev   # a damper binds: the IK as a QP with the dampers (``sim.collision``)
-                self._guarded(model, data, q, v, *rows)
-                return
+            # a damper binds for the DLS's qdot_ref (or the kernel handed back): the IK as a QP with the
+            # dampers (``sim.collision``); ``check`` measures only the pairs whose row could bind
+            if guard is not None and (status != 0 or guard.check(data, self._qdot_ref)):
+                A, b = guard.rows(data)
+                if len(b):
+                    if self._torque:
+                        self._qdot_prev = self._prev.copy()
+                    self._guarded(model, data, q, v, A, b)
+                    return
             if status == 0:
                 if self._torque:
                     mujoco.mj_mulM(model, data, self._macc, self._acc_full)

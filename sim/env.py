@@ -5,7 +5,7 @@ lean ``step`` for a ``sim.task.FieldTrackingTask``.
 ``TimeStep``: step type, reward, discount, and the observation ``OrderedDict`` with the keys,
 dtypes and shapes of ``observation_spec()``; the same time limit, reset-after-LAST and
 ``PhysicsError`` on a new MuJoCo warning) and runs the control step of ``sim.loop.execute``:
-``mj_step1`` (computed torque from MuJoCo's dynamics), the tool pose, the controller's command and
+``mj_step1`` (with ``FieldController.split``), the tool pose, the controller's command and
 the step's perturbations (``FieldTrackingTask.apply``), ``mj_step2`` (or ``mj_step`` without the
 split), all on the raw ``physics.model.ptr`` / ``physics.data.ptr``; then ``mj_kinematics`` so the
 observation describes the new joints, and the reward and observation read from views of the raw
@@ -115,7 +115,7 @@ class FieldEnvironment(control.Environment):
         task.bind(d)
         ctl = task.controller
         ctl.bind(d)
-        self._split = ctl.uses_mj_dynamics
+        self._split = ctl.split
         # as sim.loop: after mj_step1 the tool pose is MuJoCo's site, else Pinocchio's FK
         self._measure = ctl.measure_site if self._split else ctl.measure
         self._to_task = ctl.to_task if task.placement.pose else None   # a pose twist needs the chart point

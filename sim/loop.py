@@ -14,8 +14,9 @@ Every control step k (t_k = k dt):
    controller's compiled fast path ``FieldController.fast_command``);
 5. the step's perturbations (push, joint-velocity noise);
 6. ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` (no dm_control wrapper); with
-   computed torque from MuJoCo's dynamics (the default) it is split into ``mj_step1`` before step 1
-   (so the mass matrix and ``qfrc_bias`` describe this state) and ``mj_step2`` after step 5; during
+   computed torque from MuJoCo's dynamics (the default) or whole-arm clearance
+   (``FieldController.split``) it is split into ``mj_step1`` before step 1 (so the mass matrix,
+   ``qfrc_bias`` and the geoms' poses describe this state) and ``mj_step2`` after step 5; during
    a ``Hold`` window the arm joints are then clamped at rest where the hold began; a NaN/unstable
    state or a bad control (mjWARN_BADQPOS/QVEL/QACC/CTRL) raises ``SimulationError``.
 
@@ -263,7 +264,7 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
     guard, CLR, GA = ctl.guard, rec.clearance, rec.guarded   # whole-arm clearance (None without it)
     warn, bad = d.warning.number, [int(w) for w in _DIVERGENCE]
     j, next_frame, q_hold = 0, int(fsteps[0]), None
-    clock, split = time.perf_counter, ctl.uses_mj_dynamics
+    clock, split = time.perf_counter, ctl.split
     step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
     ctl.bind(d)
     # after mj_step1 the tool pose is MuJoCo's (Pinocchio computes the IK's Jacobian); else Pinocchio FK

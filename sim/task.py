@@ -241,13 +241,14 @@ class FieldTrackingTask(control.Task):
         self.clipped_actions = 0
 
     def before_step(self, action: np.ndarray, physics: ArmPhysics) -> None:
-        """Check the action and write the commands; MuJoCo's computed torque (``dynamics="mujoco"``)
-        first runs ``mj_step1`` for M(q) and the bias forces at this state (the ``mj_step`` that
-        follows recomputes them, identically). The hooks of dm_control's generic step;
-        ``sim.env.FieldEnvironment.step`` runs the same control without them."""
+        """Check the action and write the commands; with ``FieldController.split`` (MuJoCo's
+        computed torque, whole-arm clearance) it first runs ``mj_step1`` for M(q), the bias forces
+        and the geoms' poses at this state (the ``mj_step`` that follows recomputes them,
+        identically). The hooks of dm_control's generic step; ``sim.env.FieldEnvironment.step``
+        runs the same control without them."""
         v = self.check_action(action)
         model, data = physics.model.ptr, physics.data.ptr
-        if self.controller.uses_mj_dynamics:
+        if self.controller.split:
             mujoco.mj_step1(model, data)
         q = data.qpos[self._qadr]
         p = self.controller.measure(q)
@@ -483,7 +484,7 @@ class FieldTrackingTask(control.Task):
             data.mocap_pos[:] = s.mocap_pos[k]
         if s.qvel_noise is not None and k < len(s.qvel_noise):
             data.qvel[self._dadr] += s.qvel_noise[k]
-            if model is not None and self.controller.uses_mj_dynamics:
+            if model is not None and self.controller.split:
                 mujoco.mj_step1(model, data)
         self.step_index = k + 1
 

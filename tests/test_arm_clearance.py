@@ -85,6 +85,47 @@ def test_damper_rows_are_mujocos_distances_and_jacobians(scene) -> None:
     np.testing.assert_allclose(b[order], np.array([w[1] for w in want])[worder], atol=1e-12)
 
 
+def test_check_decides_as_the_rows_and_gives_their_minimum_on_a_path_into_the_sphere(scene) -> None:
+    """``ArmClearance.check`` (lower bounds from the broad phase and from cached distances, exact
+    distances only where a row could bind) decides, for random qdot, exactly as the rows of
+    ``rows`` whether a damper binds (any A qdot > b), and otherwise gives their smallest distance
+    and its pair, on a joint path that takes the fingers from beyond d_i into the sphere (states a
+    few mm from it and touching included), walked forward, back and with jumps."""
+    exp, model, _, _ = scene
+    robot = exp.robot
+    from robots import solve_pose_ik
+
+    ob = exp.obstacles[0]
+    centre = exp.placement.to_world(ob.center)
+    side = exp.placement.to_world(ob.center + np.array([0.0, ob.radius])) - centre
+    side /= np.linalg.norm(side)
+    ends = []
+    for gap in (0.06, -0.03):    # the tool point this far beyond the fingers' reach (hand margin) from the surface
+        target = centre + side * (exp.placement.scale * ob.radius + hand_margin_m(robot) + gap)
+        q, err, _ = solve_pose_ik(robot, target, exp.rotation_ref, q0=robot.q_home)
+        assert err < 1e-4
+        ends.append(q)
+    path = np.linspace(ends[0], ends[1], 240)
+    rng = np.random.default_rng(3)
+    order = np.concatenate([np.arange(240), np.arange(239, -1, -3), rng.integers(0, 240, 60)])
+    data = mujoco.MjData(model)
+    guard, exact = ArmClearance(model, robot), ArmClearance(model, robot)
+    binds, smallest = 0, np.inf
+    for k in order:
+        data.qpos[robot.mj_qpos_adr] = path[k] + rng.normal(0.0, 2e-4, robot.n)
+        mujoco.mj_forward(model, data)
+        A, b = exact.rows(data)
+        for scale in (0.02, 0.3, 2.0):    # rad/s
+            qdot = rng.normal(0.0, scale, robot.n)
+            want = bool(np.any(A @ qdot > b))
+            assert guard.check(data, qdot) == want
+            binds += want
+            if not want:
+                assert guard.min_distance == exact.min_distance and guard.closest == exact.closest
+        smallest = min(smallest, exact.min_distance)
+    assert smallest < 0.0 and 50 < binds < 3 * len(order) - 50   # touching states; both decisions met
+
+
 def test_table_and_self_pairs_are_checked_but_not_the_base_on_its_table(scene) -> None:
     exp, model, data, _ = scene
     guard = ArmClearance(model, exp.robot)

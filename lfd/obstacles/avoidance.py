@@ -49,9 +49,9 @@ import numpy as np
 from lfd.errors import ConfigError
 from lfd.field import FieldKind, FieldWrapper, cached_single_point_evaluator, is_phased, is_time_varying
 from lfd.integrate import rk4_phase, rk4_step
-from lfd.obstacles.groups import _group
+from lfd.obstacles.groups import MERGE_POWER, _group
 from lfd.obstacles.parse import parse_obstacle
-from lfd.obstacles.shapes import _EPS, Obstacle, _pad3
+from lfd.obstacles.shapes import _EPS, Box, Capsule, Obstacle, Sphere, _pad3
 
 __all__ = ["AvoidingField", "PhasedAvoidingField", "avoid", "CONVERGENCE_BAND", "GOAL_FADE", "MIN_GOAL_GAMMA",
            "REACTIVITY"]
@@ -323,11 +323,27 @@ class AvoidingField(FieldWrapper):
         return x
 
     # ---- single-point path
-    def point_modulator(self) -> Callable[[np.ndarray, np.ndarray, float], np.ndarray]:
+    def point_modulator(self, compiled: bool = True) -> Callable[[np.ndarray, np.ndarray, float], np.ndarray]:
         """``modulate`` for one point, as plain floats (written out for 3-D; a 2-D point is padded
-        with z = 0): (x (d,), v (d,), t) -> the avoiding velocity (d,), user units."""
-        geoms = [u.point_geometry() for u in self.units]
+        with z = 0): (x (d,), v (d,), t) -> the avoiding velocity (d,), user units.
+
+        With ``compiled`` (the default), static obstacles of the built-in shapes and a fixed goal
+        take the same arithmetic compiled with numba (``lfd.obstacles._point_kernel``; equal to
+        the Python closure to round-off); moving obstacles, a moving goal or other shapes take
+        the Python closure."""
         movers = [(k, u.obstacle) for k, u in enumerate(self.units) if u.moving]
+        if (compiled and self.units and not movers and not self._time_varying
+                and all(type(o) in (Sphere, Box, Capsule) for u in self.units for o in u.members)):
+            from lfd.obstacles._point_kernel import modulate, pack
+
+            prm = pack(self.units, self._fade if self.convergence else [0.0] * len(self.units), self.reactivity,
+                       self.convergence, CONVERGENCE_BAND, _pad3(self.field.goal), (GAMMA_FLOOR, INSIDE_NR_FLOOR),
+                       self.dim == 2, MERGE_POWER, _EPS)
+
+            def mc(x: np.ndarray, v: np.ndarray, t: float = 0.0) -> np.ndarray:
+                return modulate(x, v, prm)
+            return mc
+        geoms = [u.point_geometry() for u in self.units]
         inv_rho = 1.0 / self.reactivity
         square = inv_rho == 2.0
         two = self.dim == 2

@@ -3,10 +3,11 @@
 MuJoCo and dm_control read ``MUJOCO_GL`` once, at import, and open (dm_control: EGL) or load
 (MuJoCo: the back-end's library) a GL back-end right there, so a bad value, a missing library or
 a broken driver used to end ``import sim`` with a traceback, even for ``--help`` or a run without
-video. ``sim`` calls :func:`select_backend` first thing: it sets the default back-end and imports
-both with rendering off, so that importing ``sim`` never needs a GL back-end, then puts
-``MUJOCO_GL`` back for ``sim.render``, which opens its contexts itself (dm_control's
-``Physics.render`` picks its back-end at its first call instead). A value the user set is
+video. ``sim`` calls :func:`select_backend` first thing: it sets the default back-end and has
+both imported with rendering off whenever they are first imported (an import hook), so that
+importing ``sim`` never needs a GL back-end and costs no MuJoCo import; ``MUJOCO_GL`` is put back
+for ``sim.render``, which opens its contexts itself (dm_control's ``Physics.render`` picks its
+back-end at its first call instead). A value the user set is
 always respected. Before simulating a run whose video will be rendered, call
 :func:`require_backend`: a missing or broken back-end is then a ``RenderError`` with one line
 naming what to install or set, before any simulation.
@@ -16,10 +17,13 @@ from __future__ import annotations
 
 import ctypes.util
 import importlib
+import importlib.abc
+import importlib.machinery
 import os
 import sys
-from collections.abc import Callable
-from typing import Any
+import types
+from collections.abc import Callable, Sequence
+from typing import Any, cast
 
 # the values sim.render opens a context with; MuJoCo's other names (glx, on, 1, ...) mean GLFW there
 GLFW_NAMES: tuple[str, ...] = ("glfw", "glx", "1", "on", "true", "enable", "enabled")
@@ -41,9 +45,10 @@ def library_found(backend: str) -> bool:
 
 def select_backend() -> str:
     """Set ``MUJOCO_GL`` unless the user did (``egl`` by default, ``osmesa`` when libEGL is missing
-    but libOSMesa is installed, with a note on stderr), and import MuJoCo and dm_control's renderer
-    module with rendering off (``MUJOCO_GL=disable`` for those imports only). Never raises for a GL
-    problem and opens no GL context. Returns the back-end in use (lower case)."""
+    but libOSMesa is installed, with a note on stderr), and have MuJoCo and dm_control's renderer
+    module imported with rendering off (``MUJOCO_GL=disable`` for those imports only) whenever they
+    are first imported. Never raises for a GL problem, opens no GL context and imports neither.
+    Returns the back-end in use (lower case)."""
     user = os.environ.get("MUJOCO_GL")
     if user:
         backend = user.lower().strip()
@@ -58,21 +63,61 @@ def select_backend() -> str:
 
 
 def _import_without_gl() -> None:
-    """Import MuJoCo and dm_control's renderer module (if not yet imported) with
-    ``MUJOCO_GL=disable``, then restore ``MUJOCO_GL``."""
+    """Have MuJoCo and dm_control's renderer module imported with ``MUJOCO_GL=disable`` (then
+    ``MUJOCO_GL`` restored), whenever something first imports them: the modules already imported
+    are left as they are, and for the others an import hook (``_WithoutGl``) is put first on
+    ``sys.meta_path``. Nothing is imported here, so ``import sim`` stays cheap."""
     todo = [name for name in _IMPORTED_WITHOUT_GL if name not in sys.modules]
-    if not todo:
-        return
-    from robots.nogl import rendering_off
+    if todo and not any(isinstance(f, _WithoutGl) for f in sys.meta_path):
+        sys.meta_path.insert(0, _WithoutGl())
 
-    with rendering_off() as saved:
-        for name in todo:
-            try:
-                module = importlib.import_module(name)
-            except ImportError:   # not installed: the import that needs it says so
+
+class _WithoutGl(importlib.abc.MetaPathFinder):
+    """Finds the modules of ``_IMPORTED_WITHOUT_GL`` through the other finders and runs their code
+    with rendering off (``_QuietLoader``); every other module is left to the other finders."""
+
+    def find_spec(self, fullname: str, path: Sequence[str] | None,
+                  target: types.ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
+        if fullname not in _IMPORTED_WITHOUT_GL:
+            return None
+        for finder in sys.meta_path:
+            if finder is self or not hasattr(finder, "find_spec"):
                 continue
-            if name == "dm_control._render" and (saved or "").lower().strip() not in DISABLED:
-                module.Renderer = _deferred_dm_control_renderer(module)  # type: ignore[attr-defined]
+            spec = finder.find_spec(fullname, path, target)
+            if spec is not None:
+                if spec.loader is not None and hasattr(spec.loader, "exec_module"):
+                    spec.loader = _QuietLoader(spec.loader)
+                return spec
+        return None
+
+
+class _QuietLoader(importlib.abc.Loader):
+    """A module's own loader, its code run with ``MUJOCO_GL=disable``; dm_control's renderer module
+    then gets the renderer that picks its back-end at first use (``_deferred_dm_control_renderer``)."""
+
+    def __init__(self, inner: Any) -> None:
+        self._inner = inner
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> types.ModuleType | None:
+        return cast("types.ModuleType | None", self._inner.create_module(spec))
+
+    def exec_module(self, module: types.ModuleType) -> None:
+        # as robots.nogl.rendering_off, which cannot be imported here: robots imports mujoco
+        saved = os.environ.get("MUJOCO_GL")
+        os.environ["MUJOCO_GL"] = "disable"
+        try:
+            self._inner.exec_module(module)
+        finally:
+            if saved is None:
+                del os.environ["MUJOCO_GL"]
+            else:
+                os.environ["MUJOCO_GL"] = saved
+        if module.__name__ == "dm_control._render" and (os.environ.get("MUJOCO_GL") or "").lower().strip() \
+                not in DISABLED:
+            module.Renderer = _deferred_dm_control_renderer(module)  # type: ignore[attr-defined]
+
+    def __getattr__(self, name: str) -> Any:   # get_resource_reader, is_package, ... of the real loader
+        return getattr(self._inner, name)
 
 
 def _deferred_dm_control_renderer(render: Any) -> Callable[..., Any]:

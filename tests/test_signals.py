@@ -141,13 +141,17 @@ def _handles_sigterm(pid: int) -> bool:
     return bool(mask >> (signal.SIGTERM - 1) & 1)
 
 
+# the file a program writes last, when it ran to its end
+COMPLETE = {"sweep_arm": "summary.json", "lfd": "m.pt", "demo_arm": "metrics.json"}
 # the project's files that run before the handlers are in place: the interpreter's start-up, then these
-BEFORE_HANDLERS = ("lfd/__init__.py", "lfd/errors.py", "lfd/interrupts.py", "lfd/cli.py", "scripts/sweep_arm.py")
+BEFORE_HANDLERS = ("lfd/__init__.py", "lfd/errors.py", "lfd/interrupts.py", "lfd/lazy.py", "lfd/cli.py",
+                   "scripts/sweep_arm.py", "sim/__init__.py", "sim/gl.py", "sim/errors.py", "sim/cli.py")
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the signal masks in /proc")
 def test_early_signal_exits_130_without_traceback(tmp_path: Path) -> None:
-    """SIGINT and SIGTERM into ``scripts/sweep_arm.py`` and ``lfd train`` a few moments after their
+    """SIGINT and SIGTERM into ``scripts/sweep_arm.py``, ``lfd train`` and the installed
+    ``lfd-demo-arm`` launcher (whose first line imports ``sim.cli``) a few moments after their
     start: during the interpreter's start-up, the programs' module-level imports and their first
     work. Once the program's code has taken the signals (SIGTERM caught at the moment it is sent)
     the end is exit 130, exactly one line ``<prog>: interrupted``, nothing on stdout and nothing
@@ -159,10 +163,14 @@ def test_early_signal_exits_130_without_traceback(tmp_path: Path) -> None:
              "contraction", "--kinds", "push", "--directions", "1", "--forces", "20", "--workers", "1"]
     lfd = [sys.executable, "-c", "import sys; from lfd.cli import main; sys.exit(main())", "train", "--demos",
            "spiral", "--iterations", "100000", "--quiet"]
+    launcher = [str(Path(sys.executable).parent / "lfd-demo-arm"), "--robot", "planar", "--learner", "contraction",
+                "--perturb", "none", "--no-video", "--iters", "100000", "--quiet"]
     cases = [("sweep_arm", sweep, 0.02, signal.SIGINT), ("sweep_arm", sweep, 0.1, signal.SIGTERM),
              ("sweep_arm", sweep, 0.1, signal.SIGINT), ("sweep_arm", sweep, 0.3, signal.SIGTERM),
              ("sweep_arm", sweep, 0.5, signal.SIGINT), ("lfd", lfd, 0.05, signal.SIGTERM),
-             ("lfd", lfd, 0.3, signal.SIGINT)]
+             ("lfd", lfd, 0.3, signal.SIGINT), ("demo_arm", launcher, 0.15, signal.SIGTERM),
+             ("demo_arm", launcher, 0.4, signal.SIGINT)]
+    cases = [c for c in cases if Path(c[1][0]).exists()]   # the launcher: where the project is installed
     (tmp_path / "models").mkdir()
     children = []
     try:
@@ -177,9 +185,16 @@ def test_early_signal_exits_130_without_traceback(tmp_path: Path) -> None:
             time.sleep(max(0.0, child[5] + child[1] - time.monotonic()))
             child[6] = _handles_sigterm(child[4].pid)
             child[4].send_signal(child[2])
+        lost = False
         for prog, delay, sig, out, proc, _, ours in children:
             stdout, stderr = proc.communicate(timeout=120)
             what = f"{prog} {sig.name} at {delay} s: rc {proc.returncode}, stderr {stderr[-600:]!r}"
+            if not ours and proc.returncode == 0:
+                # CPython's own start-up can drop a signal (before any code of the project runs: the
+                # program then simply runs to its end); what it wrote must then be the whole run
+                lost = True
+                assert (out / COMPLETE[prog]).is_file(), what
+                continue
             assert not out.exists() or not any(out.rglob("*")), what + f"; left {list(out.rglob('*'))}"
             if ours:
                 assert (proc.returncode, stderr, stdout) == (130, f"{prog}: interrupted\n", ""), what
@@ -190,7 +205,8 @@ def test_early_signal_exits_130_without_traceback(tmp_path: Path) -> None:
                 assert all(f.endswith(BEFORE_HANDLERS) for f in project), what
             else:
                 assert stderr == f"{prog}: interrupted\n" and "Traceback" not in stderr, what
-        assert not [p for p in (tmp_path / "models").rglob("*") if p.is_file()]   # no model half-cached
+        if not lost:
+            assert not [p for p in (tmp_path / "models").rglob("*") if p.is_file()]   # no model half-cached
     finally:
         for child in children:
             child[4].kill()

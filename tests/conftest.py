@@ -42,3 +42,20 @@ def make_linear_field() -> Callable[..., VelocityField]:
 def spiral_field_2d() -> VelocityField:
     """f(x) = A (x - g), A = [[-1, 3], [-3, -1]], g = (0.5, -0.25): a stable focus, |x - g| ~ e^{-t}."""
     return linear_field(np.array([[-1.0, 3.0], [-3.0, -1.0]]), np.array([0.5, -0.25]), scale=2.0)
+
+
+# Modules whose module-scoped fixtures train models or run benchmarks: their tests stay on one
+# xdist worker (``--dist loadgroup``, pyproject.toml), so that each such fixture is built once; the
+# tests of every other module are spread over the workers one by one.
+SHARED_FIXTURES = frozenset({
+    "test_arm_regression", "test_bench", "test_bench_robottasks", "test_certify", "test_contraction", "test_node",
+    "test_ray_cluster", "test_sim_obstacles", "test_sweep",
+})
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Put the tests of ``SHARED_FIXTURES`` modules into one xdist group per module."""
+    for item in items:
+        module = item.path.stem
+        if module in SHARED_FIXTURES:
+            item.add_marker(pytest.mark.xdist_group(module))

@@ -215,25 +215,7 @@ def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
 
 # ---------------------------------------------------------------- the Ray executor
 
-def test_ray_executor_matches_the_local_pool_and_resumes(quick: dict[str, Any], tmp_path: Path,
-                                                          capsys: pytest.CaptureFixture[str]) -> None:
-    """Two DMP cells of the quick run again on a local Ray instance (2 CPUs; the DMP keeps it fast:
-    a contraction cell costs minutes on a loaded CI box): the local process pool's records bit for
-    bit, the timings and host fields left out, then a rerun computes nothing."""
-    pytest.importorskip("ray")
-    argv = ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle,Sine", "--executor", "ray",
-            "--workers", "2", "--json", str(tmp_path / "r.json"), "--report", str(tmp_path / "r.md")]
-    assert main(argv) == 0
-    r = json.loads((tmp_path / "r.json").read_text())
-    assert r["run"]["executor"] == "ray" and r["run"]["computed"] == 2
-    local = {(c["learner"], c["shape"]): c for c in quick["json"]["results"]}
-    for cell in r["results"]:
-        ref = local[(cell["learner"], cell["shape"])]
-        assert cell["hash"] == ref["hash"]
-        assert results(cell) == results(ref), cell["shape"]
-    capsys.readouterr()
-    assert main(argv) == 0                                  # resumes: every cell from the cache, no Ray start
-    assert "0 cell(s) computed, 2 from" in capsys.readouterr().out
+# on a Ray cluster: tests/test_ray_cluster.py
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -1,12 +1,16 @@
-"""The arm sweep (scripts/sweep_arm.py) on a Ray cluster of two nodes, both on this machine.
+"""The Ray executor on a cluster of two nodes, both on this machine: the arm sweep
+(scripts/sweep_arm.py), the LASA benchmark (``lfd bench``) and ``run_parallel``'s retries.
 
-A head and a second node (one CPU each, ``ray start`` in a temporary directory, free ports, token
-authentication with a token of the test's own) run a sweep that joins them with ``--address``;
-one Ray worker process is killed with SIGKILL while it runs a task. The sweep must use both nodes,
-finish (exit 0, every record), show the retry in the records' ``attempts`` and give the records of
-a local sweep, bit for bit (``records.results``: timings, ``attempts`` and ``node`` left out). The
-cluster's processes (each node in a session of its own) are ended afterwards, and none may be
-left. Slow (the Ray starts): Linux only (it reads ``/proc``); skipped without Ray.
+One cluster serves the module (each Ray start costs many seconds): a head and a second node (one
+CPU each, ``ray start`` in a temporary directory, free ports, token authentication with a token of
+the test's own). A sweep joins them with ``--address`` and one Ray worker process is killed with
+SIGKILL while it runs a task: the sweep must use both nodes, finish (exit 0, every record), show
+the retry in the records' ``attempts`` and give the records of a local sweep, bit for bit
+(``records.results``: timings, ``attempts`` and ``node`` left out). The benchmark's records on the
+cluster are the local pool's, bit for bit, and a rerun computes nothing; a task that kills its
+own worker once is run again, one that always does is given up after ``max_attempts`` tries with
+Ray's reason. The cluster's processes (each node in a session of its own) are ended afterwards,
+and none may be left. Slow (the Ray starts): Linux only (it reads ``/proc``); skipped without Ray.
 """
 
 from __future__ import annotations
@@ -89,7 +93,7 @@ def _stop(sessions: list[int]) -> None:
             time.sleep(0.2)
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def cluster() -> Iterator[dict[str, Any]]:
     """A head and a second node, one CPU each, and a local sweep started beside them (it trains the
     field into the model cache the cluster's sweep reads): ``{"address", "env", "sessions",
@@ -168,3 +172,57 @@ def test_a_sweep_on_two_nodes_survives_a_killed_worker_and_gives_the_local_recor
     assert len(nodes) == 2 and set(summary["run"]["nodes"]) == nodes
     assert all(r["node"]["host"] == socket.gethostname() and r["node"]["ip"] for r in b.values())
     assert {r["node"]["host"] for r in a.values()} == {socket.gethostname()}
+
+
+def _driver(env: dict[str, str], *argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """A Python process of ``argv`` with the cluster's token in its environment (Ray reads it when
+    it starts, so drivers that join the cluster run as processes of their own)."""
+    return subprocess.run([PYTHON, *argv], capture_output=True, text=True, env=env, cwd=cwd, timeout=600)
+
+
+def test_the_benchmark_on_the_cluster_gives_the_local_pools_records_and_resumes(cluster: dict[str, Any],
+                                                                                tmp_path: Path) -> None:
+    """Two DMP cells (fast: a contraction cell costs minutes on a loaded CI box) on the cluster and
+    on a local pool of 2: the same records bit for bit (timings and host fields left out); a rerun
+    on the cluster computes nothing."""
+    def bench(name: str, *extra: str) -> subprocess.CompletedProcess[str]:
+        return _driver(cluster["env"], "-m", "lfd.cli", "bench", "lasa", "--learner", "dmp", "--quick", "--shapes",
+                       "Angle,Sine", "--workers", "2", "--json", str(tmp_path / name / "r.json"), "--report",
+                       str(tmp_path / name / "r.md"), *extra, cwd=tmp_path)
+
+    on_ray = ("--executor", "ray", "--address", cluster["address"])
+    for name, extra in (("ray", on_ray), ("local", ())):
+        p = bench(name, *extra)
+        assert p.returncode == 0, p.stderr[-2000:]
+    r, local = (json.loads((tmp_path / n / "r.json").read_text()) for n in ("ray", "local"))
+    assert r["run"]["executor"] == "ray" and r["run"]["computed"] == 2 and local["run"]["executor"] == "local"
+    ref = {(c["learner"], c["shape"]): c for c in local["results"]}
+    assert len(r["results"]) == 2 and ref.keys() == {(c["learner"], c["shape"]) for c in r["results"]}
+    for cell in r["results"]:
+        assert cell["hash"] == ref[(cell["learner"], cell["shape"])]["hash"]
+        assert results(cell) == results(ref[(cell["learner"], cell["shape"])]), cell["shape"]   # bit for bit
+    again = bench("ray", *on_ray)
+    assert again.returncode == 0 and "0 cell(s) computed, 2 from" in again.stdout, again.stdout + again.stderr
+
+
+RETRIES = """
+import json, os, sys
+from lfd.bench.executor import run_parallel
+from test_reliability import die_on_first_try
+
+folder, address = sys.argv[1:]
+items = [(folder, 0, "once"), (folder, 1, "fine"), (folder, 2, "always")]
+done, failed = {}, {}
+run_parallel(die_on_first_try, items, 2, "ray", address=address, on_done=lambda i, r, n, w: done.update({i: [r, n]}),
+             paths=(os.getcwd(),), on_failed=lambda i, f: failed.update({i: [f.attempts, f.reason]}), max_attempts=2)
+print(json.dumps({"done": done, "failed": failed}))
+"""
+
+
+def test_run_parallel_on_the_cluster_retries_a_killed_run_and_gives_up_after_the_limit(cluster: dict[str, Any],
+                                                                                      tmp_path: Path) -> None:
+    p = _driver(cluster["env"], "-c", RETRIES, str(tmp_path), cluster["address"], cwd=Path(__file__).parent)
+    assert p.returncode == 0, p.stderr[-2000:]
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    assert out["done"] == {"0": [0, 2], "1": [10, 1]}
+    assert list(out["failed"]) == ["2"] and out["failed"]["2"][0] == 2 and "WorkerCrashedError" in out["failed"]["2"][1]

@@ -460,17 +460,6 @@ def test_only_the_runs_of_the_dead_worker_count_a_try() -> None:
 
 
 @pytest.mark.slow
-def test_ray_retries_a_killed_run(tmp_path: Path) -> None:
-    pytest.importorskip("ray")
-    items = [(str(tmp_path), 0, "once"), (str(tmp_path), 1, "fine"), (str(tmp_path), 2, "always")]
-    done: dict[int, tuple[int, int]] = {}
-    failed: dict[int, Failure] = {}
-    run_parallel(die_on_first_try, items, 2, "ray", on_done=lambda i, r, n, w: done.__setitem__(i, (r, n)),
-                 paths=(TESTS,), on_failed=failed.__setitem__, max_attempts=2)
-    assert done == {0: (0, 2), 1: (10, 1)}
-    assert list(failed) == [2] and failed[2].attempts == 2 and "WorkerCrashedError" in failed[2].reason
-
-
 # ---------------------------------------------------------------- killed sweeps and benchmarks
 def _stat(pid: int) -> tuple[str, int] | None:
     """(state, parent pid) of a process from /proc, None when it is gone."""

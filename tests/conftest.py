@@ -44,12 +44,13 @@ def spiral_field_2d() -> VelocityField:
     return linear_field(np.array([[-1.0, 3.0], [-3.0, -1.0]]), np.array([0.5, -0.25]), scale=2.0)
 
 
-# Modules whose module-scoped fixtures train models or run benchmarks: their tests stay on one
-# xdist worker (``--dist loadgroup``, pyproject.toml), so that each such fixture is built once; the
-# tests of every other module are spread over the workers one by one.
+# Modules whose module-scoped fixtures train models, run benchmarks or start a cluster (and the
+# examples, which share one model cache in order): their tests stay on one xdist worker
+# (``--dist loadgroup``, pyproject.toml), so that each such fixture is built once; the tests of every
+# other module are spread over the workers one by one.
 SHARED_FIXTURES = frozenset({
-    "test_arm_regression", "test_bench", "test_bench_robottasks", "test_certify", "test_contraction", "test_node",
-    "test_ray_cluster", "test_sim_obstacles", "test_sweep",
+    "test_arm_regression", "test_bench", "test_bench_robottasks", "test_certify", "test_contraction", "test_examples",
+    "test_node", "test_ray_cluster", "test_sim_obstacles", "test_sweep",
 })
 
 

@@ -52,7 +52,8 @@ def stats(x: np.ndarray) -> str:
 
 def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict[str, np.ndarray]:
     """Per-stage wall times of ``steps`` control steps of the rollout loop (the same calls as
-    ``sim.loop.execute``, timed one by one), shape (steps,) each."""
+    ``sim.loop.execute``, timed one by one; "field f(x)" includes the task point x), shape
+    (steps,) each."""
     env = environment(exp, field)
     env.reset()
     task = env.task
@@ -60,7 +61,10 @@ def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict
     ctl, f = task.controller, field.single_point_evaluator()
     qadr = exp.robot.mj_qpos_adr
     split = ctl.split
-    names = ("mj_step1", "read state", "FK (Pinocchio)", "field f(x)", "twist+IK+command", "mj_step2")
+    ctl.bind(d)
+    # as sim.loop: after mj_step1 MuJoCo's tool site and its Jacobian, else Pinocchio's FK
+    measure = ctl.measure_site if split else ctl.measure
+    names = ("mj_step1", "read state", "tool pose, Jacobian", "field f(x)", "twist+IK+command", "mj_step2")
     steps = min(steps, task.n_steps)
     t = {k: np.empty(steps) for k in names}
     clock = time.perf_counter
@@ -71,7 +75,7 @@ def breakdown(exp: sim.Experiment, field: lfd.VelocityField, steps: int) -> dict
         c1 = clock()
         q = d.qpos[qadr]
         c2 = clock()
-        p = ctl.measure(q)
+        p = measure(q)
         c3 = clock()
         v = f(ctl.to_task(p))
         c4 = clock()

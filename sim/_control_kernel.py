@@ -192,3 +192,43 @@ def kernel(jac: np.ndarray, p: np.ndarray, rot: np.ndarray, v: np.ndarray, q: np
         return status
     _actuate(q, qvel, bias, qprev, prm, n, nv, out)
     return 0
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True)
+def observe(qpos: np.ndarray, qvel: np.ndarray, site: np.ndarray, goal: np.ndarray, goal_world: np.ndarray,
+            prm: np.ndarray, out: np.ndarray) -> float:  # pragma: no cover - compiled
+    """The observation and reward of ``sim.task.FieldTrackingTask.outputs`` for a position task, in
+    one pass.
+
+    qpos (nq,), qvel (nv,) : MuJoCo's; site (3,) : the tool site's world position, m; goal (d,) :
+    the goal, task units; goal_world (3,) : the goal in world, m; prm : n, d, the reward's goal
+    tolerance, margin and Gaussian scale, o (3,), A^T / s row by row (3 d), q_min (n), q_max (n),
+    and the arm's qpos and qvel addresses (n each), shape (8 + 3 d + 4 n,); out (3 n + 3 + 2 d,)
+    : receives q (n), qdot (n), p (3), x = A^T (p - o) / s (d), goal (d) and the joint-limit flags
+    (n: 1.0 where q is outside [q_min, q_max], else 0.0). Returns the reward (1 within the
+    tolerance of the goal, else exp(-((dist - tol) / margin scale)^2 / 2); NaN for a non-finite p).
+    """
+    n, d = int(prm[0]), int(prm[1])
+    tol, margin, scale = prm[2], prm[3], prm[4]
+    a_ = 8
+    lo_ = a_ + 3 * d
+    hi_ = lo_ + n
+    qa_ = hi_ + n
+    da_ = qa_ + n
+    for k in range(n):
+        qk = qpos[int(prm[qa_ + k])]
+        out[k] = qk
+        out[n + k] = qvel[int(prm[da_ + k])]
+        out[2 * n + 3 + 2 * d + k] = 1.0 if (qk < prm[lo_ + k] or qk > prm[hi_ + k]) else 0.0
+    px, py, pz = site[0], site[1], site[2]
+    out[2 * n], out[2 * n + 1], out[2 * n + 2] = px, py, pz
+    dx, dy, dz = px - prm[5], py - prm[6], pz - prm[7]
+    for i in range(d):
+        out[2 * n + 3 + i] = prm[a_ + 3 * i] * dx + prm[a_ + 3 * i + 1] * dy + prm[a_ + 3 * i + 2] * dz
+        out[2 * n + 3 + d + i] = goal[i]
+    gx, gy, gz = goal_world[0], goal_world[1], goal_world[2]
+    dist = np.sqrt((px - gx) ** 2 + (py - gy) ** 2 + (pz - gz) ** 2)
+    if dist <= tol:
+        return 1.0
+    r = (dist - tol) / margin * scale
+    return np.exp(-0.5 * r * r)

@@ -24,10 +24,12 @@ qdot = IK(q, twist) (``robots.DifferentialIK``), then the actuator command:
   on the same model (``dynamics="pinocchio"``); the two agree to round-off (tests/test_control_step.py).
 
 Fast path (``fast_command``): twist, the DLS solve and the actuator command in one compiled numba
-function (``sim._control_kernel.kernel``); it hands back to the Python path (``twist`` / ``solve_ik``
-/ ``actuate``, same results) near a singularity or a joint limit, for a tool orientation error near pi,
-and for the ``pink`` IK or custom IK rows. The measured comparison of the commands and of the gain
-k_d is in reports/arm.md (scripts/speed_loop.py refreshes it).
+function (``sim._control_kernel.kernel``), after ``mj_step1`` on MuJoCo's tool site and its
+Jacobian (``measure_site``; Pinocchio's kinematics then run only if the Python path needs them);
+it hands back to the Python path (``twist`` / ``solve_ik`` / ``actuate``, same results up to
+round-off) near a singularity or a joint limit, for a tool orientation error near pi, and for the
+``pink`` IK or custom IK rows. The measured comparison of the commands and of the gain k_d is in
+reports/arm.md (scripts/speed_loop.py refreshes it).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ from sim.errors import SimError
 from sim.placement import Placement
 
 DYNAMICS: tuple[str, ...] = ("mujoco", "pinocchio")
+_mul_m, _add, _jac_site = mujoco.mj_mulM, np.add, mujoco.mj_jacSite   # bound once: called every control step
 
 _KERNEL: Any = None
 
@@ -176,6 +179,11 @@ class FieldController:
         self._rot_t = np.ascontiguousarray(placement.rotation.T)
         self._rot = np.ascontiguousarray(placement.rotation)
         self._z = np.zeros(6)
+        # to_task of a position task on Python floats (numpy's call overhead dominates at d <= 3)
+        self._origin_l: list[float] = self._origin.tolist()
+        # A^T / s row by row, padded to 3 rows (d <= 3; a pose task does not use it)
+        self._At_s_l: list[float] = np.vstack([self._At_s, np.zeros((3, 3))])[:3].ravel().tolist()
+        self._d3 = placement.dim == 3
         self._kn_n = gains.plane * placement.normal
         self._normal = placement.normal.copy()
         self._n_o = float(placement.normal @ placement.origin)
@@ -222,6 +230,14 @@ class FieldController:
         self._data: mujoco.MjData | None = None
         self._site = int(model.site(self.robot.mj_ee_site).id)
         self._from_site = False
+        # after mj_step1 the compiled path takes MuJoCo's Jacobian of the tool site (equal to
+        # Pinocchio's up to round-off; columns = the arm's dofs when they are MuJoCo's first n), and
+        # Pinocchio's kinematics run only if the Python path needs them (``_kinematics``)
+        self._model = model
+        self._mj_jac = self._fast_ok and contiguous and lo == 0
+        self._jac_mj = np.zeros((6, nv))
+        self._jacp, self._jacr = self._jac_mj[:3], self._jac_mj[3:]
+        self._kin_q: np.ndarray | None = None
 
     def _pack(self, model: mujoco.MjModel) -> np.ndarray:
         """The kernel's parameter vector, shape (_HEADER + 15 + 3 d + 6 n,) (layout: ``sim._kernel_layout``)."""
@@ -245,6 +261,7 @@ class FieldController:
         """Start a run at rest at q, shape (n,); sets R_ref to the tool orientation there if unset."""
         self._qdot_prev = np.zeros(self.robot.n)
         self._v_prev = None
+        self._kin_q = None
         self.kin.update(np.asarray(q, dtype=np.float64))
         if self.rotation_ref is None and self._spatial:
             self.rotation_ref = self.kin.ee_rotation().copy()
@@ -254,29 +271,49 @@ class FieldController:
             _, pos, rot = self.kin._placement()
             zeros = np.zeros(self._nv)
             v0 = np.zeros(6 if self._pose else self.placement.dim)
-            for p_, r_ in ((pos, rot), (np.ascontiguousarray(pos), np.ascontiguousarray(rot))):  # Pinocchio, MuJoCo
-                self._kernel(self.kin._jac, p_, r_, v0, np.asarray(q, dtype=np.float64),
+            for j_, p_, r_ in ((self.kin._jac, pos, rot),   # Pinocchio's, then MuJoCo's arrays
+                               (self._jac_mj, np.ascontiguousarray(pos), np.ascontiguousarray(rot))):
+                self._kernel(j_, p_, r_, v0, np.asarray(q, dtype=np.float64),
                              zeros, zeros, self._qdot_prev.copy(), self._prm, self._out.copy())
 
     def measure(self, q: np.ndarray) -> np.ndarray:
         """FK at q, shape (n,): the tool position p, shape (3,) (a view valid until the next call)."""
         self._from_site = False
+        self._kin_q = None
         return self.kin.update_position(q)
 
     def measure_site(self, q: np.ndarray) -> np.ndarray:
         """As ``measure``, for a state where MuJoCo has just run its kinematics at q (``mj_step1``)
         on the data given to ``bind``: the tool pose is MuJoCo's tool site (equal to Pinocchio's
-        frame up to round-off), and Pinocchio computes only the Jacobian (lazily, the pose too if the
-        Python path needs it). Returns a view of ``data.site_xpos``, shape (3,)."""
+        frame up to round-off), and so is the compiled path's Jacobian (``mj_jacSite``) where the
+        arm's dofs are MuJoCo's first; Pinocchio's kinematics at q (the Jacobian, the pose lazily)
+        run only when the Python path needs them, during this control step (q, shape (n,), must not
+        change before). Returns a view of ``data.site_xpos``, shape (3,)."""
         self._from_site = True
-        self.kin.update(q)
+        if self._mj_jac:
+            _jac_site(self._model, self._data, self._jacp, self._jacr, self._site)
+            self._kin_q = q
+        else:
+            self.kin.update(q)
         return self._site_pos
+
+    def _kinematics(self) -> None:
+        """Bring Pinocchio's kinematics to the q of the last ``measure_site`` if it left them behind."""
+        if self._kin_q is not None:
+            self.kin.update(self._kin_q)
+            self._kin_q = None
 
     def to_task(self, p: np.ndarray) -> np.ndarray:
         """x = A^T (p - o) / s, shape (d,); for a pose task the chart point z (6,) of the last
         measured pose (module docstring), remembered for the twist."""
         if not self._pose:
-            return self._At_s.dot(p - self._origin)
+            px, py, pz = p.tolist()
+            ox, oy, oz = self._origin_l
+            dx, dy, dz = px - ox, py - oy, pz - oz
+            a0, a1, a2, b0, b1, b2, c0, c1, c2 = self._At_s_l
+            if self._d3:
+                return np.array((a0 * dx + a1 * dy + a2 * dz, b0 * dx + b1 * dy + b2 * dz, c0 * dx + c1 * dy + c2 * dz))
+            return np.array((a0 * dx + a1 * dy + a2 * dz, b0 * dx + b1 * dy + b2 * dz))
         assert self._chart is not None
         self._z = z = self._chart.point(self._At_s.dot(p - self._origin), self._rot_t.dot(self.measured_rotation()))
         return z
@@ -297,6 +334,7 @@ class FieldController:
     def twist(self, v: np.ndarray) -> np.ndarray:
         """The tool twist, shape (6,), for task velocity v, shape (d,), at the last measured pose."""
         # ndarray.dot costs about half of @ on these tiny operands (call overhead dominates)
+        self._kinematics()
         if self._pose:
             return self.pose_twist(v)
         tw = self._twist
@@ -310,6 +348,7 @@ class FieldController:
 
     def solve_ik(self, q: np.ndarray, twist: np.ndarray) -> np.ndarray:
         """qdot_ref, shape (n,), for the twist, shape (6,), at the measured q (FK already done)."""
+        self._kinematics()
         if self._pass_kin:
             return self.ik.solve(q, twist, self.dt, kin=self.kin)
         return self.ik.solve(q, twist, self.dt)
@@ -353,7 +392,8 @@ class FieldController:
         whole-arm clearance the dampers are checked against the DLS's qdot_ref
         (``ArmClearance.check``); where one binds, or the compiled call hands back, the IK is the QP
         with every damper row within reach (``ArmClearance.rows``)."""
-        v = self.lead(v)
+        if self._v_lead != 0.0:
+            v = self.lead(v)
         guard = self.guard
         if guard is not None:
             if not self.split:   # no mj_step1 this step: MuJoCo's poses are the last step's
@@ -370,12 +410,14 @@ class FieldController:
                 self.bind(data)
             if self._from_site:
                 pos, rot = self._site_pos, self._site_rot
+                jac = self._jac_mj if self._mj_jac else self.kin._jac
             else:
                 _, pos, rot = self.kin._pose or self.kin._placement()
+                jac = self.kin._jac
             vk = self.pose_twist(v) if self._pose else v
             if guard is not None and self._torque:
                 self._prev[:] = self._qdot_prev
-            status = self._kernel(self.kin._jac, pos, rot, vk, q, self._qvel, self._bias, self._qdot_prev,
+            status = self._kernel(jac, pos, rot, vk, q, self._qvel, self._bias, self._qdot_prev,
                                   self._prm, self._out)
             # a damper binds for the DLS's qdot_ref (or the kernel handed back): the IK as a QP with the
             # dampers (``sim.collision``); ``check`` measures only the pairs whose row could bind
@@ -388,9 +430,9 @@ class FieldController:
                     return
             if status == 0:
                 if self._torque:
-                    mujoco.mj_mulM(model, data, self._macc, self._acc_full)
+                    _mul_m(model, data, self._macc, self._acc_full)
                     if self._ctrl_arm is not None and self._macc_arm is not None:
-                        np.add(self._macc_arm, self._base, out=self._ctrl_arm)
+                        _add(self._macc_arm, self._base, self._ctrl_arm)
                     else:
                         data.ctrl[self.robot.mj_actuator_ids] = self._macc[self._dofs] + self._base
                 elif self._ctrl_arm is not None:
@@ -405,7 +447,8 @@ class FieldController:
                  A: np.ndarray, b: np.ndarray) -> None:
         """``data.ctrl`` from the IK QP with the damper rows A qdot <= b (``robots.ik.constrained``)
         for the (led) task velocity v at the measured q."""
-        qdot_ref, _ = self._cik.solve(q, self.twist(v), self.dt, A, b, kin=self.kin)
+        tw = self.twist(v)   # Pinocchio's kinematics at q first (``_kinematics``)
+        qdot_ref, _ = self._cik.solve(q, tw, self.dt, A, b, kin=self.kin)
         self.guard_active = bool(self._cik.active.any())
         data.ctrl[self.robot.mj_actuator_ids] = self.actuate(q, data.qvel[self._dofs], qdot_ref, model, data)
 

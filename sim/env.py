@@ -8,9 +8,10 @@ dtypes and shapes of ``observation_spec()``; the same time limit, reset-after-LA
 ``mj_step1`` (with ``FieldController.split``), the tool pose, the controller's command and
 the step's perturbations (``FieldTrackingTask.apply``), ``mj_step2`` (or ``mj_step`` without the
 split), all on the raw ``physics.model.ptr`` / ``physics.data.ptr``; then ``mj_kinematics`` so the
-observation describes the new joints, and the reward and observation read from views of the raw
-arrays (``FieldTrackingTask.reward_now``, ``observe``). Each observation holds fresh arrays: a
-later step does not change an observation kept from an earlier one.
+observation (and ``physics.data``) describes the new joints, and the reward and observation from
+``FieldTrackingTask.outputs`` (for a position task one compiled pass that writes every observed
+value into one fresh array, whose slices are the observation's arrays). Each observation holds
+fresh arrays: a later step does not change an observation kept from an earlier one.
 
 Warnings: dm_control raises ``PhysicsError`` for a warning counter that grew during
 ``Physics.step``; this step compares the counters once a step, with those at the end of the last
@@ -93,6 +94,7 @@ class FieldEnvironment(control.Environment):
         self._warned = b""
         self._warnings_now: Any = None
         self._qadr: Any = None
+        self._q_arm: Any = None
         self._check: Any = None
         self._apply: Any = None
         self._outputs: Any = None
@@ -113,6 +115,8 @@ class FieldEnvironment(control.Environment):
         self._warnings_now = self._warnings.tobytes
         self._qpos, self._qadr = d.qpos, task._qadr
         task.bind(d)
+        # the arm's q as a view of qpos when contiguous (as sim.loop; read before mj_step2 changes it)
+        self._q_arm = task._qpos_arm
         ctl = task.controller
         ctl.bind(d)
         self._split = ctl.split
@@ -161,7 +165,7 @@ class FieldEnvironment(control.Environment):
         split = self._split
         if split:   # as sim.loop: M(q) and the bias forces at this state
             _step1(m, d)
-        q = self._qpos[self._qadr]
+        q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
         p = self._measure(q)
         if self._to_task is not None:
             self._to_task(p)

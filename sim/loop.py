@@ -4,7 +4,8 @@ Every control step k (t_k = k dt):
 
 1. read q, qdot of the arm joints from MuJoCo;
 2. p = FK(q): MuJoCo's tool site after ``mj_step1`` (see 6; equal to Pinocchio's FK up to
-   round-off), else Pinocchio (``controller.measure``); the Jacobian is Pinocchio's;
+   round-off) and, for the compiled IK, MuJoCo's Jacobian of the site (``controller.measure_site``),
+   else Pinocchio's pose and Jacobian (``controller.measure``);
 3. v = f(x - dg) with x = A^T (p - o) / s the MEASURED tool position in task space (dg: a goal
    shift, ``sim.perturbations``), or v = f(x - dg, t_k) for a time-varying field (``lfd.goal``,
    moving obstacles of ``lfd.obstacles``); a field with a phase (``lfd.learners.tracking``) runs
@@ -263,6 +264,10 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
     ROT = rec.rot   # a pose task's tool rotations (None otherwise)
     guard, CLR, GA = ctl.guard, rec.clearance, rec.guarded   # whole-arm clearance (None without it)
     warn, bad = d.warning.number, [int(w) for w in _DIVERGENCE]
+    # the divergence counters as one view when they are consecutive (one bytes compare a step)
+    b0 = min(bad)
+    bad_view = warn[b0:b0 + len(bad)] if sorted(bad) == list(range(b0, b0 + len(bad))) else None
+    no_warning = bytes(0 if bad_view is None else bad_view.nbytes)
     j, next_frame, q_hold = 0, int(fsteps[0]), None
     clock, split = time.perf_counter, ctl.split
     step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
@@ -272,6 +277,9 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
     qpos, qvel = d.qpos, d.qvel   # one view each for the whole loop (each attribute access builds a new one)
     lo = int(dadr[0])               # the arm's qvel as one view when its dofs are contiguous (cheaper to copy)
     qvel_arm = qvel[lo:lo + len(dadr)] if np.array_equal(dadr, np.arange(lo, lo + len(dadr))) else None
+    # the arm's qpos as one view when contiguous: q of a step is read before its mj_step2 changes qpos
+    lo = int(qadr[0])
+    qpos_arm = qpos[lo:lo + len(qadr)] if np.array_equal(qadr, np.arange(lo, lo + len(qadr))) else None
     push_body = task.schedule.push_body
     force = d.xfrc_applied[max(push_body, 0), :3]   # the push body's applied force (a view)
     cpu0 = time.thread_time()
@@ -280,7 +288,7 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
         t0 = clock()
         if split:
             step1(m, d)
-        q = qpos[qadr]
+        q = qpos[qadr] if qpos_arm is None else qpos_arm
         p = measure(q)
         Q[k] = q
         Qd[k] = qvel[dadr] if qvel_arm is None else qvel_arm
@@ -313,7 +321,8 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
             qpos[qadr] = q_hold
             qvel[dadr] = 0.0
             mujoco.mj_forward(m, d)
-        if warn[bad[0]] or warn[bad[1]] or warn[bad[2]] or warn[bad[3]]:
+        if (bad_view.tobytes() != no_warning if bad_view is not None else
+                warn[bad[0]] or warn[bad[1]] or warn[bad[2]] or warn[bad[3]]):
             raise SimulationError(_divergence_message(d, k, dt, bad))
         steps[k] = clock() - t0
         if k % 250 == 249:

@@ -20,8 +20,8 @@
 The fast loop (``sim.loop``) uses these same Physics and Task objects but calls
 ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly. The environment that
 ``make_environment`` returns (``sim.env.FieldEnvironment``, a ``control.Environment``) steps the
-same way: the same physics and control as the loop, plus the observation and the reward read from
-views of the raw MuJoCo arrays (``FieldTrackingTask.observe``, ``reward_now``), so its step costs
+same way: the same physics and control as the loop, plus the observation and the reward from the raw MuJoCo
+arrays (``FieldTrackingTask.outputs``: one compiled pass for a position task), so its step costs
 little more than the loop's (scripts/speed_loop.py measures both; reports/env_step.md).
 """
 
@@ -202,6 +202,17 @@ class FieldTrackingTask(control.Task):
         self._n = robot.n
         self._site = int(model.site(robot.mj_ee_site).id)
         self._data: mujoco.MjData | None = None
+        # the compiled pass of ``outputs`` (a position task; ``sim._control_kernel.observe``): its
+        # parameters, the layout of its output row and the keys' slices of it (bound by ``bind``)
+        n, d = robot.n, placement.dim
+        self._obs_prm = np.concatenate([
+            [n, d, GOAL_TOLERANCE_M, REWARD_MARGIN_M, _REWARD_SCALE], self._origin, self._At_s.ravel(),
+            self._q_min, self._q_max, np.asarray(self._qadr, dtype=np.float64),
+            np.asarray(self._dadr, dtype=np.float64)]).astype(np.float64)
+        self._obs_size = 3 * n + 3 + 2 * d
+        bounds = np.cumsum([0, n, n, 3, d, d, n]).tolist()
+        self._obs_slices = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:]))
+        self._observe: Callable[..., float] | None = None
 
     def _start_joints(self, x: np.ndarray) -> tuple[np.ndarray, float, float]:
         """Joints, shape (n,), with the tool on task point x, shape (d,) (a pose task: in its pose),
@@ -264,11 +275,21 @@ class FieldTrackingTask(control.Task):
     def check_action(self, action: np.ndarray) -> np.ndarray:
         """The action as float64, shape (d,), clipped to the spec's bounds; ``SimError`` for a
         wrong shape or a non-finite value (module docstring)."""
+        # the fast path, on Python floats (numpy's reductions cost more here)
         if type(action) is np.ndarray and action.dtype == _F64 and action.shape == self._action_shape:
-            vals = action.tolist()   # the fast path, on Python floats (numpy's reductions cost more here)
-            total = sum(vals)        # NaN if any value is NaN (min / max may skip one)
-            if total == total and self._v_lo <= min(vals) and max(vals) <= self._v_hi:
-                return action
+            lo, hi, vals = self._v_lo, self._v_hi, action.tolist()
+            if len(vals) == 2:   # unpacked, chained comparisons (a NaN fails them)
+                x, y = vals
+                if lo <= x <= hi and lo <= y <= hi:
+                    return action
+            elif len(vals) == 3:
+                x, y, z = vals
+                if lo <= x <= hi and lo <= y <= hi and lo <= z <= hi:
+                    return action
+            else:
+                total = sum(vals)        # NaN if any value is NaN (min / max may skip one)
+                if total == total and lo <= min(vals) and max(vals) <= hi:
+                    return action
         spec = self._action_spec
         try:
             v = np.asarray(action, dtype=np.float64)
@@ -326,6 +347,10 @@ class FieldTrackingTask(control.Task):
         site = self._site
         self._site_pos = data.site_xpos[site]
         self._site_rot = data.site_xmat[site].reshape(3, 3)
+        if not self._pose and self._observe is None:
+            from sim._control_kernel import observe  # here: ``import sim`` does not import numba
+
+            self._observe = observe
 
     def observe(self) -> collections.OrderedDict:
         """``get_observation`` of the bound data (``bind``), as fresh arrays (a later step does not
@@ -350,7 +375,10 @@ class FieldTrackingTask(control.Task):
         return self._goal_reward(px, py, pz)
 
     def outputs(self) -> tuple[float, collections.OrderedDict]:
-        """``reward_now()`` and ``observe()`` in one pass (what a control step returns).
+        """``reward_now()`` and ``observe()`` in one pass (what a control step returns). A position
+        task computes both in one compiled call (``sim._control_kernel.observe``) that writes the
+        observed values into one fresh array, shape (3 n + 3 + 2 d,); the observation's arrays are
+        its slices (no two observations share memory). A pose task computes them in Python.
 
         Returns
         -------
@@ -358,6 +386,22 @@ class FieldTrackingTask(control.Task):
         observation : collections.OrderedDict
         """
         assert self._data is not None, "bind(data) first"
+        if self._observe is not None:   # a position task: one compiled pass into one fresh row
+            row = np.empty(self._obs_size)
+            reward = self._observe(self._qpos, self._qvel, self._site_pos, self.goal_task, self.goal_world,
+                                   self._obs_prm, row)
+            s_q, s_qdot, s_p, s_x, s_goal, s_limit = self._obs_slices
+            obs = collections.OrderedDict()   # item by item: cheaper than from keywords or pairs
+            obs["joint_positions"] = row[s_q]
+            obs["joint_velocities"] = row[s_qdot]
+            obs["ee_position"] = row[s_p]
+            obs["task_position"] = x = row[s_x]
+            obs["goal"] = row[s_goal]
+            obs["joint_limit"] = row[s_limit]
+            if self.field is not None:
+                v = self.field(x - self._shift, self._data.time) if self._timed else self.field(x - self._shift)
+                obs["field_velocity"] = np.array(v, dtype=np.float64)
+            return reward, obs
         q, qdot, p = self._read_q(), self._read_qdot(), self._site_pos.copy()
         px, py, pz = p.tolist()
         if self._pose:

@@ -146,14 +146,16 @@ def _solve_small(jac: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:  # pr
 def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
             gen: np.ndarray, w1b: np.ndarray, w2: np.ndarray, inv_r2: float,
             a: np.ndarray, y_star: np.ndarray, goal: np.ndarray, scale: float, vec: np.ndarray,
-            mat: np.ndarray, th: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """scale f_n((x - goal) / scale) (d,) of Eq. (C3) at x (d,): y = phi(x_n) and J_phi through the
-    swirl and residual blocks (n_pairs of each; arrays as ``contraction_point_fn`` packs them), then
-    J_phi^-1 A (y - y*), back in user units (goal = 0 and scale = 1: normalised units).
+            mat: np.ndarray, th: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """out (d,) <- scale f_n((x - goal) / scale) of Eq. (C3) at x (d,): y = phi(x_n) and J_phi through
+    the swirl and residual blocks (n_pairs of each; arrays as ``contraction_point_fn`` packs them),
+    then J_phi^-1 A (y - y*), back in user units (goal = 0 and scale = 1: normalised units).
 
-    vec (5, d), mat (4, d, d) and th (hidden,) are scratch, allocated once per evaluator: the only
-    allocation per call is the returned array."""
+    vec (5, d), mat (4, d, d) and th (hidden,) are scratch, allocated once per evaluator; the caller
+    allocates out (a numpy array returned from compiled code costs more to hand back)."""
     d = x.shape[0]
+    if d != out.shape[0]:
+        raise ValueError("the point's dimension does not match the field's")
     y, z, kz, h, b = vec[0], vec[1], vec[2], vec[3], vec[4]
     jac, rot, step, tmp = mat[0], mat[1], mat[2], mat[3]
     for i in range(d):
@@ -170,11 +172,9 @@ def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np
         for j in range(d):
             s += a[i, j] * (y[j] - y_star[j])
         b[i] = s
-    out = np.empty(d)
     _solve_small(jac, b, out)
     for i in range(d):
         out[i] *= scale
-    return out
 
 
 def kernel() -> Any:
@@ -205,10 +205,13 @@ def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np
     goal_ = np.zeros(d) if goal is None else np.ascontiguousarray(goal, dtype=np.float64).copy()
     scale_ = float(scale)
     vec, mat, th = np.empty((5, d)), np.empty((4, d, d)), np.empty(w1b.shape[1])   # the kernel's scratch
-    k = kernel()
+    k, f64, empty = kernel(), np.dtype(np.float64), np.empty
 
     def f(xn: np.ndarray) -> np.ndarray:
-        return k(np.ascontiguousarray(xn, dtype=np.float64), centers, theta, inv_2rho2, gen, w1b, w2,
-                 inv_r2, a, y_star, goal_, scale_, vec, mat, th)
+        if type(xn) is not np.ndarray or xn.dtype is not f64 or not xn.flags.c_contiguous:
+            xn = np.ascontiguousarray(xn, dtype=np.float64)
+        out = empty(d)
+        k(xn, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, a, y_star, goal_, scale_, vec, mat, th, out)
+        return out
 
     return f

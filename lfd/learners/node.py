@@ -407,7 +407,8 @@ class NodeField(VelocityField):
     def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
         """The fast path for one point, for control loops: ``field(x)`` on x of shape (d,) calls it.
 
-        A few us a call, on a snapshot of the weights. The normalisation x_n = (x - goal) / s,
+        One compiled call (``lfd.learners.mlp_kernel``; the numpy twin is ``_numpy_mlp``, equal to
+        round-off) on a snapshot of the weights. The normalisation x_n = (x - goal) / s,
         f = s f_n(x_n) is folded into the first and last layers: W_1' = W_1 / s,
         b_1' = b_1 - W_1 goal / s, W_L' = s W_L, b_L' = s b_L.
 
@@ -416,12 +417,14 @@ class NodeField(VelocityField):
         callable
             x, array of shape (d,), user units -> dx/dt, array of shape (d,), user units.
         """
+        from lfd.learners.mlp_kernel import mlp_point_fn  # here: ``import lfd`` does not import numba
+
         layers = self._numpy_layers()
         goal, s = self.norm.goal, float(self.norm.scale)
         (w1, b1), (wl, bl) = layers[0], layers[-1]
         layers[0] = (w1 / s, b1 - w1.dot(goal) / s)
         layers[-1] = (wl * s, bl * s)
-        return _numpy_mlp(layers, cast(NodeMLP, self.module).activation)
+        return mlp_point_fn(layers, cast(NodeMLP, self.module).activation)
 
 
 def _numpy_mlp(layers: list[tuple[np.ndarray, np.ndarray]],

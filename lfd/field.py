@@ -139,8 +139,11 @@ class PhasedField(Field, Protocol):
         """The demos' duration T, s: ds/dt = 1 / T on the reference."""
         ...
 
-    def phase_point_fn(self, x0: np.ndarray | None = None) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
-        """(x, s) -> (dx/dt, ds/dt) for one point, conditioned on the start x0, shape (d,)."""
+    def phase_point_fn(self, x0: np.ndarray | None = None, clock_weight: Callable[[np.ndarray], float] | None = None
+                       ) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
+        """(x, s) -> (dx/dt, ds/dt) for one point, conditioned on the start x0, shape (d,);
+        ``clock_weight`` (x (d,) -> omega in [0, 1]) blends the phase's waiting toward the clock,
+        Eq. (T4b) of docs/equations.md (None: Eq. (T4) as is)."""
         ...
 
     def reference(self, s: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:

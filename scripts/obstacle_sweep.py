@@ -70,11 +70,28 @@ def main(argv: list[str] | None = None) -> int:
     figure = _figure(recs, Path(a.cache), fig_dir / "obstacle_fields.png", ob)
     if figure:
         lines += ["", f"![Trajectories of scenes where the plain modulation fails]({figure})", ""]
+    kept = kept_section(report)
+    if kept:
+        lines += ([""] if lines[-1] else []) + kept
     with atomic_path(report) as tmp:
         tmp.write_text("\n".join(lines) + "\n")
     print(f"wrote {report}")
     del np
     return 0
+
+
+#: the report's hand-written section (the NODE's misses investigated), kept on a rewrite
+KEPT_HEADING = "## Why the NODE misses"
+
+
+def kept_section(path: Path) -> list[str]:
+    """The lines of ``path`` from ``KEPT_HEADING`` on, or none."""
+    if not path.exists():
+        return []
+    old = path.read_text().splitlines()
+    if KEPT_HEADING not in old:
+        return []
+    return old[old.index(KEPT_HEADING):]
 
 
 def _report(recs: list[dict], placements: int, ob: object) -> list[str]:

@@ -479,6 +479,70 @@ def test_tracking_field_avoids_obstacles_and_its_phase_keeps_going() -> None:
         avoid(field, [Sphere([0.5, 0.5], 0.1, velocity=[0.1, 0.0])])
 
 
+#: the Panda sweep's hand margin in the units of its 3-demo spiral (28.2 mm at 0.608 m per unit)
+PANDA_HAND_UNITS = 0.0282 / 0.608
+
+
+@pytest.mark.parametrize("scene", [12, 34])
+def test_tracking_phase_keeps_its_pace_while_the_tool_detours(scene: int) -> None:
+    """Eq. (T4b): two Panda-sweep scenes (obstacles on the path, grown by the hand's size) in
+    which the phase of Eq. (T4) alone was still below 0.4 when the run ended, 1.5 s after the demos'
+    duration T. Blended toward the clock in the band, the phase is in its last 1 % (``PHASE_END``,
+    where it stops) by T + 1.25 s and the tool ends within 1e-3 of the extent of the goal by
+    T + 1.5 s; no step enters an obstacle."""
+    import dataclasses
+
+    from lfd.learners.tracking import PHASE_END
+    from lfd.obstacles import random_scene
+
+    demos = lfd.spiral(n_demos=3, radius=0.13)
+    field = lfd.train("tracking", demos, seed=0)
+    m = PANDA_HAND_UNITS
+    scene_obs = [dataclasses.replace(o, margin=o.margin + m) for o in random_scene(demos, scene, extra_margin=m)]
+    a = avoid(field, scene_obs)
+    T = float(demos.t[0, -1] - demos.t[0, 0])
+    t = np.linspace(0.0, T + 1.5, int(200 * (T + 1.5)) + 1)
+    x, s = a.rollout_with_phase(demos.x[0, 0], t)
+    assert float(a.gamma(x).min()) >= 1.0
+    assert float(np.interp(T + 1.25, t, s)) >= 1.0 - PHASE_END and s[-1] > 1.0 - 1e-4
+    assert float(np.linalg.norm(x[-1] - a.run_goal(demos.x[0, 0]))) < 1e-3 * demos.extent
+    assert float(np.linalg.norm(x[-1] - field.goal)) < 1e-3 * demos.extent
+    compiled, closure = a.point_band(), a.point_band(compiled=False)      # omega of Eq. (O2), both paths
+    w = np.array([compiled(p) for p in x[::20]])
+    np.testing.assert_allclose(w, [closure(p) for p in x[::20]], atol=1e-12)
+    assert w.max() > 0.5 and w.min() == 0.0                              # the tool went round an obstacle
+
+
+def test_phased_field_steers_toward_its_runs_end() -> None:
+    """A start-conditioned reference whose demos end apart ends at r(1 | x0), not at the mean goal:
+    Eqs. (O2)-(O3) take r(1 | x0) as the goal of that run, so with an obstacle beside that end
+    the run still stops there; an end inside an obstacle is refused."""
+    base = lfd.spiral(n_demos=3, radius=0.13)
+    u = np.clip((base.t - base.t[:, :1]) / (base.t[:, -1:] - base.t[:, :1]), 0.0, 1.0)[..., None]
+    ends = np.array([[0.01, 0.0], [0.0, 0.0], [-0.01, 0.0]])    # within the demos' end tolerance
+    demos = lfd.DemoSet(t=base.t, x=base.x + u ** 3 * ends[:, None, :], name="spread-ends")
+    field = lfd.train("tracking", demos, seed=0)
+    x0 = demos.x[0, 0]
+    end = field.reference(np.array([1.0]), x0)[0]
+    off = end - field.goal
+    assert float(np.linalg.norm(off)) > 0.004                  # this run does not end at the mean goal
+    side = np.array([-off[1], off[0]]) / np.linalg.norm(off)
+    ob = Sphere(end + 0.014 * side, 0.01)                      # Gamma(end) = 1.4: omega > 0 there
+    a = avoid(field, [ob])
+    np.testing.assert_allclose(a.run_goal(x0), end, atol=1e-12)
+    fn = a.phase_point_fn(x0)
+    v, sdot = fn(end, 1.0)
+    assert sdot == 0.0 and float(np.linalg.norm(v)) < 1e-9
+    T = float(demos.t[0, -1] - demos.t[0, 0])
+    t = np.linspace(0.0, T + 1.5, int(200 * (T + 1.5)) + 1)
+    x, s = a.rollout_with_phase(x0, t)
+    assert float(a.gamma(x).min()) >= 1.0 and s[-1] > 1.0 - 1e-4
+    assert float(np.linalg.norm(x[-1] - end)) < 1e-3 * demos.extent
+    with pytest.raises(ConfigError, match="run's goal"):
+        r = 0.4 * float(np.linalg.norm(off))                   # the mean goal outside, the run's end inside
+        avoid(field, [Sphere(end + 0.5 * r * side, r)]).phase_point_fn(x0)
+
+
 @pytest.mark.parametrize("name", ["spiral", "spiral3d", "lasa:Sshape"])
 def test_random_scenes_are_seeded_and_keep_goal_and_starts_clear(name: str) -> None:
     from lfd.obstacles import random_scene

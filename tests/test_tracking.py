@@ -131,6 +131,27 @@ def test_phase_point_fn_agrees_with_velocity(spiral: lfd.DemoSet, fields: dict[s
         np.testing.assert_allclose(f.single_point_evaluator()(x0), f(x0), rtol=1e-9, atol=1e-12)
 
 
+def test_clock_weight_blends_the_phase_stopping_toward_the_clock(spiral: lfd.DemoSet,
+                                                                 fields: dict[str, TrackingField]) -> None:
+    """Eq. (T4b): omega = 0 is Eq. (T4) to round-off, omega = 1 runs the phase at the clock c(s) / T
+    however far the tool is from the reference, and Eq. (T3) takes the blended rate."""
+    f = fields["K=3"]
+    x0 = spiral.x[0, 0]
+    plain, zero, one = (f.phase_point_fn(x0), f.phase_point_fn(x0, clock_weight=lambda x: 0.0),
+                        f.phase_point_fn(x0, clock_weight=lambda x: 1.0))
+    far = x0 + 0.5 * spiral.extent                     # h of Eq. (T4) far below 1
+    for s in (0.1, 0.3, 0.995):
+        v, sd = plain(far, s)
+        v0, sd0 = zero(far, s)
+        v1, sd1 = one(far, s)
+        assert abs(sd0 - sd) <= 1e-15 and np.allclose(v0, v, rtol=1e-12, atol=1e-15)
+        assert sd < 0.5 * sd1
+        assert abs(sd1 - min(1.0, (1.0 - s) / 0.01) / f.duration) < 1e-12
+        h = 1e-5   # Eq. (T3): only s_dot r'(s) changes, r' by central differences of r(s | x0)
+        dr = (f.reference(np.array([s + h]), x0)[0] - f.reference(np.array([s - h]), x0)[0]) / (2.0 * h)
+        np.testing.assert_allclose(v1 - v, (sd1 - sd) * dr, rtol=1e-4, atol=1e-9)
+
+
 def test_certificate_constants_and_check(fields: dict[str, TrackingField]) -> None:
     f = fields["K=3"]
     assert f.rate == 3.0 and f.metric_bounds == (1.0, 1.0) and f.condition_bound <= 10.0

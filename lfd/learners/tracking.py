@@ -10,7 +10,8 @@ stays autonomous:
     Eq. (T4): ds/dt = h(|x - r(s)|) c(s) / T,   h(e) = 1 / (1 + (e / eps)^2),
 
 c(s) stopping the phase at s = 1 exactly (``PHASE_END``) and h the phase stopping of DMPs (the phase
-waits when the motion is held back). For ANY phase law the error e = x - r(s) obeys de/dt = -K e:
+waits when the motion is held back; around obstacles h is blended toward the clock, Eq. (T4b),
+``phase_point_fn(clock_weight=...)``). For ANY phase law the error e = x - r(s) obeys de/dt = -K e:
 
     Eq. (T5): |x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t),
 
@@ -279,10 +280,16 @@ class TrackingField(ContractingField):
         va, sda = v.numpy() * self.norm.scale, sd.numpy()
         return (va[0], float(sda[0])) if single else (va, sda)  # type: ignore[return-value]
 
-    def phase_point_fn(self, x0: np.ndarray | None = None) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
+    def phase_point_fn(self, x0: np.ndarray | None = None, clock_weight: Callable[[np.ndarray], float] | None = None
+                       ) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
         """A fast numpy evaluator (x (d,), s) -> (dx/dt (d,), ds/dt) in user units for control loops
         (Eqs. (T3)-(T4); with ``condition_start``, for the run that started at x0). The same floats
-        as ``velocity`` up to round-off (tests/test_tracking.py)."""
+        as ``velocity`` up to round-off (tests/test_tracking.py).
+
+        ``clock_weight``: x (d,) -> omega in [0, 1]; the phase stopping h of Eq. (T4) is then
+        blended toward the clock, h + omega (1 - h) (Eq. (T4b) of docs/equations.md: an obstacle
+        wrapper passes its band weight of Eq. (O2), so the phase keeps its pace while the tool
+        detours). None (the default): Eq. (T4) as is."""
         mod = self.module
         ref, dref = mod.ref.numpy().copy(), mod.dref.numpy().copy()
         if x0 is not None and self.conditioned:
@@ -304,7 +311,13 @@ class TrackingField(ContractingField):
             xn = (np.asarray(x, dtype=np.float64) - goal) / sc
             e = xn - r
             end = min(max((1.0 - s) / PHASE_END, 0.0), 1.0)
-            sdot = (inv_t / (1.0 + float(e.dot(e)) / eps2) if stop else inv_t) * end
+            if not stop:
+                sdot = inv_t * end
+            elif clock_weight is None:
+                sdot = inv_t / (1.0 + float(e.dot(e)) / eps2) * end
+            else:   # Eq. (T4b)
+                h = 1.0 / (1.0 + float(e.dot(e)) / eps2)
+                sdot = inv_t * (h + clock_weight(x) * (1.0 - h)) * end
             return (sdot * dr - k * e) * sc, sdot
 
         return f

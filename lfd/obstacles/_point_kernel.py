@@ -15,7 +15,7 @@ from typing import Any
 import numba
 import numpy as np
 
-__all__ = ["pack", "modulate", "SHAPES"]
+__all__ = ["pack", "modulate", "band_weight", "SHAPES"]
 
 #: the member kinds: 0 sphere, 1 box, 2 capsule (``pack``)
 SHAPES = ("Sphere", "Box", "Capsule")
@@ -225,3 +225,21 @@ def modulate(x: np.ndarray, v: np.ndarray, P: np.ndarray) -> np.ndarray:  # prag
     if not two:
         out[2] = v2
     return out
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True)
+def band_weight(x: np.ndarray, P: np.ndarray) -> float:  # pragma: no cover - compiled
+    """omega of Eq. (O2) at x, shape (d,): 1 on an obstacle's surface, 0 from Gamma = 1 + band on
+    (P from ``pack``; the band whether or not the field steers)."""
+    two = P[HEAD - 3] != 0.0
+    x0, x1 = x[0], x[1]
+    x2 = 0.0 if two else x[2]
+    K = int(P[0])
+    if K == 0:
+        return 0.0
+    gmin = _geometry(P, 0, x0, x1, x2)[0]
+    for k in range(1, K):
+        g = _geometry(P, k, x0, x1, x2)[0]
+        if g < gmin:
+            gmin = g
+    return _smoothstep((1.0 + P[2] - gmin) * P[3])

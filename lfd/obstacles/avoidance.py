@@ -323,21 +323,67 @@ class AvoidingField(FieldWrapper):
         return x
 
     # ---- single-point path
-    def point_modulator(self, compiled: bool = True) -> Callable[[np.ndarray, np.ndarray, float], np.ndarray]:
+    def _compilable(self) -> bool:
+        """Whether ``lfd.obstacles._point_kernel`` takes these obstacles: static ones of the
+        built-in shapes, and a fixed goal."""
+        return (bool(self.units) and not any(u.moving for u in self.units) and not self._time_varying
+                and all(type(o) in (Sphere, Box, Capsule) for u in self.units for o in u.members))
+
+    def _fades_for(self, goal: np.ndarray) -> list[float]:
+        """r_k of Eq. (O3) for a fixed goal, shape (d,) (``_fade`` for the field's own goal);
+        ``ConfigError`` if that goal lies inside an obstacle."""
+        fades = []
+        for u in self.units:
+            g = float(u.geometry(np.asarray(goal, dtype=np.float64)[None], 0.0)[0][0])
+            if g < 1.0:
+                raise ConfigError(f"the run's goal {np.round(goal, 6).tolist()} lies inside obstacle {u.describe()}")
+            length = min(m.size for m in u.members)
+            fades.append(0.0 if u.moving or not self.convergence else GOAL_FADE * length * (g - 1.0))
+        return fades
+
+    def point_band(self, compiled: bool = True) -> Callable[[np.ndarray], float]:
+        """omega of Eq. (O2) for one point: x (d,) -> a float in [0, 1], 1 on an obstacle's surface
+        and 0 from Gamma = 1 + ``CONVERGENCE_BAND`` on (static obstacles; compiled like
+        ``point_modulator``)."""
+        if compiled and self._compilable():
+            from lfd.obstacles._point_kernel import band_weight, pack
+
+            prm = pack(self.units, [0.0] * len(self.units), self.reactivity, self.convergence, CONVERGENCE_BAND,
+                       _pad3(self.field.goal), (GAMMA_FLOOR, INSIDE_NR_FLOOR), self.dim == 2, MERGE_POWER, _EPS)
+
+            def wc(x: np.ndarray) -> float:
+                return float(band_weight(x, prm))
+            return wc
+        geoms = [u.point_geometry() for u in self.units]
+        two, inv_band = self.dim == 2, 1.0 / CONVERGENCE_BAND
+
+        def w(x: np.ndarray) -> float:
+            x0, x1, x2 = (*x.tolist(), 0.0) if two else x.tolist()
+            if not geoms:
+                return 0.0
+            gmin = min(gm(x0, x1, x2, 0.0)[0] for gm in geoms)
+            return _smoothstep((1.0 + CONVERGENCE_BAND - gmin) * inv_band)
+        return w
+
+    def point_modulator(self, compiled: bool = True, goal: np.ndarray | None = None
+                        ) -> Callable[[np.ndarray, np.ndarray, float], np.ndarray]:
         """``modulate`` for one point, as plain floats (written out for 3-D; a 2-D point is padded
         with z = 0): (x (d,), v (d,), t) -> the avoiding velocity (d,), user units.
 
         With ``compiled`` (the default), static obstacles of the built-in shapes and a fixed goal
         take the same arithmetic compiled with numba (``lfd.obstacles._point_kernel``; equal to
         the Python closure to round-off); moving obstacles, a moving goal or other shapes take
-        the Python closure."""
+        the Python closure. ``goal``, shape (d,): the fixed point g of Eqs. (O2)-(O3) (default
+        the field's goal; a start-conditioned phase field's run ends at r(1 | x0) instead)."""
         movers = [(k, u.obstacle) for k, u in enumerate(self.units) if u.moving]
-        if (compiled and self.units and not movers and not self._time_varying
-                and all(type(o) in (Sphere, Box, Capsule) for u in self.units for o in u.members)):
+        own_goal = goal is None
+        goal_g = np.asarray(self.field.goal if goal is None else goal, dtype=np.float64)
+        fade_g = self._fade if own_goal else self._fades_for(goal_g)
+        if compiled and self._compilable():
             from lfd.obstacles._point_kernel import modulate, pack
 
-            prm = pack(self.units, self._fade if self.convergence else [0.0] * len(self.units), self.reactivity,
-                       self.convergence, CONVERGENCE_BAND, _pad3(self.field.goal), (GAMMA_FLOOR, INSIDE_NR_FLOOR),
+            prm = pack(self.units, fade_g if self.convergence else [0.0] * len(self.units), self.reactivity,
+                       self.convergence, CONVERGENCE_BAND, _pad3(goal_g), (GAMMA_FLOOR, INSIDE_NR_FLOOR),
                        self.dim == 2, MERGE_POWER, _EPS)
 
             def mc(x: np.ndarray, v: np.ndarray, t: float = 0.0) -> np.ndarray:
@@ -351,9 +397,9 @@ class AvoidingField(FieldWrapper):
         array = np.array
         steer = self.convergence
         band, inv_band = CONVERGENCE_BAND, 1.0 / CONVERGENCE_BAND
-        fades = [(k, 1.0 / rho) for k, rho in enumerate(self._fade) if rho > 0.0]
-        goal_at, tv = self.goal_at, self._time_varying
-        g0, g1, g2 = _pad3(self.field.goal)
+        fades = [(k, 1.0 / rho) for k, rho in enumerate(fade_g) if rho > 0.0]
+        goal_at, tv = self.goal_at, self._time_varying and own_goal
+        g0, g1, g2 = _pad3(goal_g)
         sqrt = math.sqrt
 
         def m(x: np.ndarray, v: np.ndarray, t: float = 0.0) -> np.ndarray:
@@ -435,11 +481,14 @@ class AvoidingField(FieldWrapper):
 
 
 class PhasedAvoidingField(AvoidingField):
-    """``AvoidingField`` around a field with a phase (``lfd.learners.tracking``): Eq. (O1)-(O3)
-    act on its x-velocity of Eq. (T3); its phase law, Eq. (T4), is the nominal one.
+    """``AvoidingField`` around a field with a phase (``lfd.learners.tracking``): Eqs. (O1)-(O3)
+    act on its x-velocity of Eq. (T3), with the run's end r(1 | x0) as the goal g (``run_goal``);
+    its phase law is Eq. (T4b) of docs/equations.md.
 
-    The phase never stops while the tool detours: h of Eq. (T4) is positive for every error, so a
-    detour only slows the phase; as s goes to 1 the field becomes K (r(1) - x).
+    Eq. (T4b) blends the phase stopping h of Eq. (T4) toward the clock by the band weight omega of
+    Eq. (O2), so the phase keeps the demos' pace while the tool goes around an obstacle (a detour
+    is not a hold-up) and is Eq. (T4) where omega = 0; the reference r(s) is the learned one. As s
+    goes to 1 the field becomes K (r(1 | x0) - x), the linear case of Eqs. (O1)-(O3).
     """
 
     kind: ClassVar[FieldKind] = FieldKind.PHASED
@@ -463,10 +512,28 @@ class PhasedAvoidingField(AvoidingField):
         """The nominal field's reference r(s), shape s.shape + (d,)."""
         return self.field.reference(s, x0)
 
-    def phase_point_fn(self, x0: np.ndarray | None = None) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
-        """(x (d,), s) -> (the avoiding dx/dt (d,), ds/dt) for one point, for the run started at x0."""
-        base = self.field.phase_point_fn(x0)
-        mod = self.point_modulator()
+    def run_goal(self, x0: np.ndarray | None = None) -> np.ndarray:
+        """Where the run started at x0 ends, r(1 | x0), shape (d,): the g of Eqs. (O2)-(O3) for that
+        run (the field's goal when the reference is not start-conditioned, or ends there)."""
+        end = np.asarray(self.field.reference(np.array([1.0]), x0), dtype=np.float64).reshape(-1, self.dim)[0]
+        goal = np.asarray(self.field.goal, dtype=np.float64)
+        return goal.copy() if float(np.linalg.norm(end - goal)) <= 1e-9 * max(1.0, float(np.linalg.norm(goal))) else end
+
+    def phase_point_fn(self, x0: np.ndarray | None = None, clock_weight: Callable[[np.ndarray], float] | None = None
+                       ) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
+        """(x (d,), s) -> (the avoiding dx/dt (d,), ds/dt) for one point, for the run started at x0.
+
+        Eqs. (O1)-(O3) steer toward the run's end r(1 | x0) (``run_goal``). With ``convergence``
+        the phase law is Eq. (T4b): the phase stopping is blended toward the clock by omega of
+        Eq. (O2), so the phase keeps the demos' pace while the tool goes around an obstacle; a
+        ``clock_weight`` given by an outer wrapper is combined with it (the larger of the two)."""
+        end = self.run_goal(x0)
+        weight = clock_weight
+        if self.convergence:
+            band = self.point_band()
+            weight = band if clock_weight is None else (lambda x: max(band(x), clock_weight(x)))
+        base = self.field.phase_point_fn(x0, clock_weight=weight)
+        mod = self.point_modulator(goal=None if np.array_equal(end, self.field.goal) else end)
 
         def f(x: np.ndarray, s: float) -> tuple[np.ndarray, float]:
             v, sdot = base(x, s)

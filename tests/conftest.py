@@ -44,19 +44,14 @@ def spiral_field_2d() -> VelocityField:
     return linear_field(np.array([[-1.0, 3.0], [-3.0, -1.0]]), np.array([0.5, -0.25]), scale=2.0)
 
 
-# Modules whose module-scoped fixtures train models, run benchmarks or start a cluster (and the
-# examples, which share one model cache in order): their tests stay on one xdist worker
-# (``--dist loadgroup``, pyproject.toml), so that each such fixture is built once; the tests of every
-# other module are spread over the workers one by one.
-SHARED_FIXTURES = frozenset({
-    "test_arm_regression", "test_bench", "test_bench_robottasks", "test_certify", "test_contraction", "test_examples",
-    "test_node", "test_ray_cluster", "test_sim_obstacles", "test_sweep",
-})
+# The test files that take longest, longest first: pytest-xdist (``--dist loadfile``, pyproject.toml)
+# hands files to the workers in collection order, so these start first and the short files fill
+# in after them, instead of one long file running alone at the end.
+LONGEST_FIRST = ("test_workers", "test_examples", "test_bench", "test_ray_cluster", "test_contraction",
+                 "test_reliability", "test_certify", "test_pose", "test_arm_clearance", "test_signals")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Put the tests of ``SHARED_FIXTURES`` modules into one xdist group per module."""
-    for item in items:
-        module = item.path.stem
-        if module in SHARED_FIXTURES:
-            item.add_marker(pytest.mark.xdist_group(module))
+    """Order the files as ``LONGEST_FIRST``, then the rest as collected (tests keep their order)."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.stem, len(rank)))

@@ -208,7 +208,7 @@ def test_the_benchmark_on_the_cluster_gives_the_local_pools_records_and_resumes(
 RETRIES = """
 import json, os, sys
 from lfd.bench.executor import run_parallel
-from test_reliability import die_on_first_try
+from test_workers import die_on_first_try
 
 folder, address = sys.argv[1:]
 items = [(folder, 0, "once"), (folder, 1, "fine"), (folder, 2, "always")]

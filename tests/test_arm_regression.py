@@ -21,6 +21,8 @@ import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import load_robot
 
+pytestmark = pytest.mark.usefixtures("one_thread")   # torch rollouts: one thread (conftest.py)
+
 GOLDEN = Path(__file__).parent / "golden" / "tracking.json"
 REL, ABS_M = 0.25, 0.0005          # tolerance: 25 % + 0.5 mm
 CHECKED = ("tracking_rmse_m", "final_goal_error_m", "imitation_rmse_m")

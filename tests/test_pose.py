@@ -15,6 +15,8 @@ from lfd.errors import DemoError
 from lfd.field import StateSpace
 from lfd.pose import PoseChart, chart_demos, continuous, geodesic_angle, mean_quaternion, quaternion_matrices
 
+pytestmark = pytest.mark.usefixtures("one_thread")   # torch rollouts: one thread (conftest.py)
+
 
 def _random_rotations(rng: np.random.Generator, n: int, max_angle: float = np.pi) -> np.ndarray:
     u = rng.normal(size=(n, 3))

@@ -15,6 +15,8 @@ from sim.experiment import Experiment
 from sim.perturbations import GoalShift, StartOffset
 from sim.pipeline import ArmJob, run_job
 
+pytestmark = pytest.mark.usefixtures("one_thread")   # torch rollouts: one thread (conftest.py)
+
 
 @pytest.fixture(scope="module")
 def pouring() -> DemoSet:

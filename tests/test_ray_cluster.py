@@ -7,7 +7,7 @@ the test's own). A sweep joins them with ``--address`` and one Ray worker proces
 SIGKILL while it runs a task: the sweep must use both nodes, finish (exit 0, every record), show
 the retry in the records' ``attempts`` and give the records of a local sweep, bit for bit
 (``records.results``: timings, ``attempts`` and ``node`` left out). The benchmark's records on the
-cluster are the local pool's, bit for bit, and a rerun computes nothing; a task that kills its
+cluster are those computed locally, bit for bit, and a rerun computes nothing; a task that kills its
 own worker once is run again, one that always does is given up after ``max_attempts`` tries with
 Ray's reason. The cluster's processes (each node in a session of its own) are ended afterwards,
 and none may be left. Slow (the Ray starts): Linux only (it reads ``/proc``); skipped without Ray.
@@ -180,20 +180,22 @@ def _driver(env: dict[str, str], *argv: str, cwd: Path) -> subprocess.CompletedP
     return subprocess.run([PYTHON, *argv], capture_output=True, text=True, env=env, cwd=cwd, timeout=600)
 
 
-def test_the_benchmark_on_the_cluster_gives_the_local_pools_records_and_resumes(cluster: dict[str, Any],
-                                                                                tmp_path: Path) -> None:
+def test_the_benchmark_on_the_cluster_gives_the_local_records_and_resumes(
+        cluster: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Two DMP cells (fast: a contraction cell costs minutes on a loaded CI box) on the cluster and
-    on a local pool of 2: the same records bit for bit (timings and host fields left out); a rerun
-    on the cluster computes nothing."""
-    def bench(name: str, *extra: str) -> subprocess.CompletedProcess[str]:
-        return _driver(cluster["env"], "-m", "lfd.cli", "bench", "lasa", "--learner", "dmp", "--quick", "--shapes",
-                       "Angle,Sine", "--workers", "2", "--json", str(tmp_path / name / "r.json"), "--report",
-                       str(tmp_path / name / "r.md"), *extra, cwd=tmp_path)
+    in this process (``--workers 1``, as every worker computes them): the same records bit for bit
+    (timings and host fields left out); a rerun on the cluster computes nothing (so it starts no Ray
+    driver and runs in this process too)."""
+    from lfd.cli import main
 
-    on_ray = ("--executor", "ray", "--address", cluster["address"])
-    for name, extra in (("ray", on_ray), ("local", ())):
-        p = bench(name, *extra)
-        assert p.returncode == 0, p.stderr[-2000:]
+    def argv(name: str, *extra: str) -> list[str]:
+        return ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle,Sine", "--json",
+                str(tmp_path / name / "r.json"), "--report", str(tmp_path / name / "r.md"), *extra]
+
+    on_ray = ("--executor", "ray", "--address", cluster["address"], "--workers", "2")
+    p = _driver(cluster["env"], "-m", "lfd.cli", *argv("ray", *on_ray), cwd=tmp_path)   # Ray reads the token at start
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert main(argv("local", "--workers", "1")) == 0
     r, local = (json.loads((tmp_path / n / "r.json").read_text()) for n in ("ray", "local"))
     assert r["run"]["executor"] == "ray" and r["run"]["computed"] == 2 and local["run"]["executor"] == "local"
     ref = {(c["learner"], c["shape"]): c for c in local["results"]}
@@ -201,8 +203,9 @@ def test_the_benchmark_on_the_cluster_gives_the_local_pools_records_and_resumes(
     for cell in r["results"]:
         assert cell["hash"] == ref[(cell["learner"], cell["shape"])]["hash"]
         assert results(cell) == results(ref[(cell["learner"], cell["shape"])]), cell["shape"]   # bit for bit
-    again = bench("ray", *on_ray)
-    assert again.returncode == 0 and "0 cell(s) computed, 2 from" in again.stdout, again.stdout + again.stderr
+    capsys.readouterr()
+    assert main(argv("ray", *on_ray)) == 0
+    assert "0 cell(s) computed, 2 from" in capsys.readouterr().out
 
 
 RETRIES = """

@@ -219,9 +219,9 @@ def test_the_users_case_with_default_options_touches_nothing_and_reaches_the_goa
     ob = users_sphere(demos)
     text = f"sphere:{float(ob.center[0])!r},{float(ob.center[1])!r},{ob.radius!r}"
     base = [sys.executable, str(ROOT / "scripts" / "demo_arm.py"), "--robot", "panda", "--demos",
-            str(tmp_path / "spiral3.npz"), "--obstacle", text, "--learner", "contraction", "--perturb", "none,push",
-            "--no-video", "--no-plots", "--iters", "300", "--quiet"]
-    for extra, out in (([], "safe"), (["--no-arm-clearance"], "tool")):
+            str(tmp_path / "spiral3.npz"), "--obstacle", text, "--learner", "contraction", "--no-video", "--no-plots",
+            "--iters", "300", "--quiet"]   # the second run takes the model the first trained (the model cache)
+    for extra, out in ((["--perturb", "none,push"], "safe"), (["--perturb", "none", "--no-arm-clearance"], "tool")):
         p = subprocess.run(base + extra + ["--out", str(tmp_path / out)], capture_output=True, text=True, timeout=600)
         assert p.returncode == 0, p.stderr[-2000:]
     safe = json.loads((tmp_path / "safe" / "metrics.json").read_text())

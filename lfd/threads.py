@@ -65,7 +65,8 @@ def _load_native_pools() -> None:
 def limit_native_threads(n: int = 1) -> None:
     """For the rest of this process (a worker's set-up): torch's intra-op threads and every native
     thread pool (BLAS, OpenMP) limited to ``n``, those loaded later too (through the environment
-    variables they read when they load).
+    variables they read when they load; torch is not imported here, so a worker that never needs
+    it does not pay for it).
 
     Parameters
     ----------
@@ -73,12 +74,13 @@ def limit_native_threads(n: int = 1) -> None:
         Threads of each pool, >= 1.
     """
     import os
+    import sys
 
-    import torch
     from threadpoolctl import threadpool_limits
 
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[name] = str(n)
-    torch.set_num_threads(n)
+    if "torch" in sys.modules:   # else torch takes its intra-op count from OMP_NUM_THREADS when it loads
+        sys.modules["torch"].set_num_threads(n)
     _load_native_pools()
     threadpool_limits(limits=n)

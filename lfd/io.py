@@ -23,7 +23,7 @@ from typing import Any, BinaryIO
 
 from lfd.errors import OutputError
 
-__all__ = ["atomic_path", "atomic_write", "check_writable", "finite_or_none", "json_text", "same_file",
+__all__ = ["atomic_path", "atomic_write", "check_writable", "finite_or_none", "json_text", "kept_section", "same_file",
            "write_json"]
 
 
@@ -151,3 +151,26 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def kept_section(path: str | os.PathLike, heading: str) -> list[str]:
+    """The lines of the markdown file ``path`` from the line ``heading`` on (a hand-written section
+    that a script keeps when it rewrites the rest of its report), or none if either is missing.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The report.
+    heading : str
+        The section's heading line, e.g. ``"## Why the NODE misses"``.
+
+    Returns
+    -------
+    list of str
+        The lines, without line ends.
+    """
+    p = Path(path)
+    if not p.exists():
+        return []
+    old = p.read_text().splitlines()
+    return old[old.index(heading):] if heading in old else []

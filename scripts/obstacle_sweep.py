@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     from lfd.bench.runner import run_cells
     from lfd.cache import cached_field
     from lfd.errors import LfdError
-    from lfd.io import atomic_path
+    from lfd.io import atomic_path, kept_section
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--placements", type=int, default=200)
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     figure = _figure(recs, Path(a.cache), fig_dir / "obstacle_fields.png", ob)
     if figure:
         lines += ["", f"![Trajectories of scenes where the plain modulation fails]({figure})", ""]
-    kept = kept_section(report)
+    kept = kept_section(report, KEPT_HEADING)
     if kept:
         lines += ([""] if lines[-1] else []) + kept
     with atomic_path(report) as tmp:
@@ -82,16 +82,6 @@ def main(argv: list[str] | None = None) -> int:
 
 #: the report's hand-written section (the NODE's misses investigated), kept on a rewrite
 KEPT_HEADING = "## Why the NODE misses"
-
-
-def kept_section(path: Path) -> list[str]:
-    """The lines of ``path`` from ``KEPT_HEADING`` on, or none."""
-    if not path.exists():
-        return []
-    old = path.read_text().splitlines()
-    if KEPT_HEADING not in old:
-        return []
-    return old[old.index(KEPT_HEADING):]
 
 
 def _report(recs: list[dict], placements: int, ob: object) -> list[str]:

@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     from lfd.bench.runner import run_cells
     from lfd.cache import cached_field
     from lfd.errors import LfdError
-    from lfd.io import atomic_path
+    from lfd.io import atomic_path, kept_section
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--placements", type=int, default=50)
@@ -140,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     lines = report(result.records, a.placements)
     if result.failed:
         lines += ["", f"Failed cells: {result.failed}"]
-    lines += kept_cost_section(Path(a.report))
+    kept = kept_section(a.report, COST_HEADING)
+    lines += [""] + kept if kept else []
     with atomic_path(Path(a.report)) as tmp:
         tmp.write_text("\n".join(lines) + "\n")
     print(f"wrote {a.report}")
@@ -149,16 +150,6 @@ def main(argv: list[str] | None = None) -> int:
 
 #: the report's hand-written section (``scripts/speed_arm_clearance.py``'s measurements), kept on a rewrite
 COST_HEADING = "## What whole-arm clearance costs per control step"
-
-
-def kept_cost_section(path: Path) -> list[str]:
-    """The lines of ``path`` from ``COST_HEADING`` on (with a blank line before), or none."""
-    if not path.exists():
-        return []
-    old = path.read_text().splitlines()
-    if COST_HEADING not in old:
-        return []
-    return [""] + old[old.index(COST_HEADING):]
 
 
 def report(recs: list[dict], placements: int) -> list[str]:

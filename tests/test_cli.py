@@ -294,3 +294,13 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_kept_section_is_the_hand_written_tail_of_a_report(tmp_path: Path) -> None:
+    from lfd.io import kept_section
+
+    report = tmp_path / "r.md"
+    assert kept_section(report, "## Notes") == []                       # no report yet
+    report.write_text("# Title\n\n| a |\n\n## Notes\n\nwritten by hand\n")
+    assert kept_section(report, "## Notes") == ["## Notes", "", "written by hand"]
+    assert kept_section(report, "## Other") == []

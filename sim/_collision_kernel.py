@@ -139,6 +139,25 @@ def _geom_distance_call(typingctx: Any, fn: Any, model: Any, data: Any, g1: Any,
 _call_geom_distance: Any = intrinsic(_geom_distance_call)
 
 
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _pair_normal(ft: np.ndarray, at: int, xpos: np.ndarray, g1: int, g2: int,
+                 d: float) -> tuple[float, float, float]:  # pragma: no cover - compiled
+    """n of Eq. (A1), unit, from the nearest points p_1 = ft[at:at + 3] (geom g1) and
+    p_2 = ft[at + 3:at + 6] (geom g2) that ``mj_geomDistance`` wrote with distance d: along
+    p_2 - p_1 (reversed when d < 0, the geoms overlapping); touching (|p_2 - p_1| ~ 0), the
+    direction between the geoms' centres xpos (ngeom, 3). One rule for ``pair_rows`` and
+    ``guard_check``, which must decide alike."""
+    u0, u1, u2 = ft[at + 3] - ft[at], ft[at + 4] - ft[at + 1], ft[at + 5] - ft[at + 2]
+    norm = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    if norm < 1e-9:   # touching: the direction between the geoms' centres
+        u0 = xpos[g2, 0] - xpos[g1, 0]
+        u1 = xpos[g2, 1] - xpos[g1, 1]
+        u2 = xpos[g2, 2] - xpos[g1, 2]
+        norm = max(np.sqrt(u0 * u0 + u1 * u1 + u2 * u2), 1e-12)
+    s = (1.0 if d >= 0.0 else -1.0) / norm
+    return u0 * s, u1 * s, u2 * s
+
+
 @numba.njit(cache=True, fastmath=False, nogil=True)
 def pair_rows(fn: int, model: int, data: int, cand: np.ndarray, count: int, g1: np.ndarray, g2: np.ndarray,
               mutual: np.ndarray, reach: float, geom_xpos: np.ndarray, geom_body: np.ndarray, cdof: np.ndarray,
@@ -159,16 +178,7 @@ def pair_rows(fn: int, model: int, data: int, cand: np.ndarray, count: int, g1: 
         d = _call_geom_distance(fn, model, data, g1[i], g2[i], reach, addr)
         if d >= reach:
             continue
-        u0, u1, u2 = fromto[3] - fromto[0], fromto[4] - fromto[1], fromto[5] - fromto[2]
-        norm = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
-        if norm < 1e-9:   # touching: the direction between the geoms' centres
-            a, b = g1[i], g2[i]
-            u0 = geom_xpos[b, 0] - geom_xpos[a, 0]
-            u1 = geom_xpos[b, 1] - geom_xpos[a, 1]
-            u2 = geom_xpos[b, 2] - geom_xpos[a, 2]
-            norm = max(np.sqrt(u0 * u0 + u1 * u1 + u2 * u2), 1e-12)
-        s = (1.0 if d >= 0.0 else -1.0) / norm
-        n[0], n[1], n[2] = u0 * s, u1 * s, u2 * s
+        n[0], n[1], n[2] = _pair_normal(fromto, 0, geom_xpos, g1[i], g2[i], d)
         for j in range(3):
             p1[j] = fromto[j]
             p2[j] = fromto[3 + j]
@@ -360,15 +370,7 @@ def _exact(fn: int, model: int, data: int, p: int, ints: np.ndarray, floats: np.
     if d >= reach:
         return np.inf, False
     f = sf
-    u0, u1, u2 = state[f + 3] - state[f], state[f + 4] - state[f + 1], state[f + 5] - state[f + 2]
-    norm = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
-    if norm < 1e-9:   # touching: the direction between the geoms' centres
-        u0 = xpos[g2, 0] - xpos[g1, 0]
-        u1 = xpos[g2, 1] - xpos[g1, 1]
-        u2 = xpos[g2, 2] - xpos[g1, 2]
-        norm = max(np.sqrt(u0 * u0 + u1 * u1 + u2 * u2), 1e-12)
-    s = (1.0 if d >= 0.0 else -1.0) / norm
-    n0, n1, n2 = u0 * s, u1 * s, u2 * s
+    n0, n1, n2 = _pair_normal(state, sf, xpos, g1, g2, d)
     lhs = 0.0
     for e in range(2 if ints[om + p] else 1):
         body = ints[obody + (g1 if e == 0 else g2)]

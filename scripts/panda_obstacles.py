@@ -65,9 +65,11 @@ class Cell:
 
     def __init__(self, learner: str, scene: int) -> None:
         from lfd.bench.protocol import stable_hash
+        from lfd.obstacles.avoidance import settings
 
         self.learner, self.scene = learner, scene
-        self.hash = stable_hash({"v": 1, "learner": learner, "scene": scene, "scenarios": SCENARIOS})
+        self.hash = stable_hash({"v": 1, "learner": learner, "scene": scene, "scenarios": SCENARIOS,
+                                 "modulation": settings(learner == "tracking")})
         self.stem = f"{learner}__scene{scene:03d}"
 
 

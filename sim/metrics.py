@@ -117,16 +117,19 @@ def clearance_metrics(t: np.ndarray, clearance: np.ndarray, active: np.ndarray, 
     dict
         ``arm_min_clearance_m`` (over the run; None if nothing came within reach),
         ``final_clearance_m`` (over the last ``BLOCKED_WINDOW_S``), ``guard_active_s`` (time with
-        a damper at its bound) and ``blocked``: the run ends more than ``BLOCKED_GOAL_M`` from its
+        a damper at its bound), ``blocked``: the run ends more than ``BLOCKED_GOAL_M`` from its
         goal while a damper held the arm back in its last ``BLOCKED_WINDOW_S`` (a damper at its bound
-        in some step of it, the arm within the dampers' reach through all of it).
+        in some step of it, the arm within the dampers' reach through all of it), and
+        ``stopped_short``: it ends more than ``BLOCKED_GOAL_M`` from its goal with nothing holding
+        it back (the field did not take the tool there within the run).
     """
     dt = float(t[1] - t[0]) if len(t) > 1 else 0.0
     finite = clearance[np.isfinite(clearance)]
     late = t >= t[-1] - BLOCKED_WINDOW_S
     last = clearance[late][np.isfinite(clearance[late])]
+    blocked = bool(goal_error_m > BLOCKED_GOAL_M and np.any(active[late])
+                   and bool(np.all(np.isfinite(clearance[late][:-1]))))
     return {"arm_min_clearance_m": float(finite.min()) if finite.size else None,
             "final_clearance_m": float(last.min()) if last.size else None,
             "guard_active_s": float(np.count_nonzero(active) * dt),
-            "blocked": bool(goal_error_m > BLOCKED_GOAL_M and np.any(active[late])
-                            and bool(np.all(np.isfinite(clearance[late][:-1]))))}
+            "blocked": blocked, "stopped_short": bool(goal_error_m > BLOCKED_GOAL_M and not blocked)}

@@ -407,10 +407,14 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
     def run(learner: str, name: str, perts: tuple[Perturbation, ...], seed: int, note: str = "") -> RunResult:
         _say(job, f"running {learner} / {name}{note}")
         result = exp.run(fields[learner], name, perts, seed=seed, progress=progress)
-        if result.metrics.get("blocked"):
-            m = result.metrics
+        m = result.metrics
+        if m.get("blocked"):
             print(f"blocked: {learner} / {name}{note} stopped {m['final_goal_error_m'] * 1e3:.0f} mm from its goal, "
                   f"held {m['final_clearance_m'] * 1e3:.0f} mm clear of what is in its way", file=sys.stderr)
+        elif m.get("stopped_short"):
+            print(f"short: {learner} / {name}{note} ended {m['final_goal_error_m'] * 1e3:.0f} mm from its goal with "
+                  f"nothing holding it back: the field did not bring it there in {exp.duration_s:g} s",
+                  file=sys.stderr)
         if on_run is not None:
             on_run(result)
         return result

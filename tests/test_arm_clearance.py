@@ -256,10 +256,37 @@ def test_blocked_runs_are_said_on_stderr(tmp_path, monkeypatch, capsys) -> None:
     err = capsys.readouterr().err
     lines = [x for x in err.splitlines() if x.startswith("blocked:")]
     assert len(lines) == 1 and "contraction / none" in lines[0] and "mm from its goal" in lines[0], err
-    assert report.results[0].metrics["blocked"] is True
+    assert report.results[0].metrics["blocked"] is True and report.results[0].metrics["stopped_short"] is False
     assert report.results[0].metrics["obstacle_steps_in_contact"] == 0
     saved = json.loads((tmp_path / "out" / "metrics.json").read_text())
     assert saved["runs"][0]["metrics"]["blocked"] is True
+
+
+def test_runs_that_end_short_with_nothing_in_the_way_say_so(tmp_path, monkeypatch, capsys) -> None:
+    """A field too slow to arrive (a linear sink at 0.01/s) with a sphere off its path: the run ends
+    about 0.1 m from its goal and no damper holds it back: ``stopped_short`` (not ``blocked``) in the
+    metrics, one ``short:`` line on stderr. The blocked run of the test above is not short."""
+    from known_fields import sink_field
+
+    import lfd.cache
+    from lfd.demos import save_file
+
+    demos = users_spiral()
+    save_file(demos, tmp_path / "spiral3.npz")
+    ob = Sphere(demos.goal + 0.8 * demos.extent, 0.03 * demos.extent)
+    slow = sink_field(demos, "contraction", a=0.01)
+    monkeypatch.setattr(lfd.cache, "cached_field", lambda name, *a, **k: (slow, tmp_path / "slow.pt", False))
+    job = sim.ArmJob(robot="panda", learners=("contraction",), demos=str(tmp_path / "spiral3.npz"),
+                     scenarios=("none",), videos=False, plots=False, out=str(tmp_path / "out"),
+                     obstacles=(f"sphere:{float(ob.center[0])!r},{float(ob.center[1])!r},{ob.radius!r}",), quiet=True)
+    report = sim.run_job(job)
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if x.startswith("short:")]
+    assert len(lines) == 1 and "contraction / none ended" in lines[0] and "nothing holding it back" in lines[0], err
+    m = report.results[0].metrics
+    assert m["stopped_short"] is True and m["blocked"] is False and m["final_goal_error_m"] > 0.05
+    assert m["obstacle_steps_in_contact"] == 0
+    assert not any(x.startswith("blocked:") for x in err.splitlines())
 
 
 def test_avoid_is_refused_above_three_dimensions() -> None:

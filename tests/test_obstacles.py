@@ -513,6 +513,34 @@ def test_tracking_phase_keeps_its_pace_while_the_tool_detours(scene: int) -> Non
     assert w.max() > 0.5 and w.min() == 0.0                              # the tool went round an obstacle
 
 
+def test_tracking_phase_keeps_the_demos_pace_in_mid_band() -> None:
+    """Eq. (T4b) with the detour weight: GShape with a sphere on its path grown by a Panda hand's
+    size (the user's ``demo_arm.py --demos lasa:GShape --obstacle sphere:-20,5,3`` at 2.81 mm per
+    unit). The tool goes round in mid-band (1 < Gamma < 1.5), where omega of Eq. (O2) is about
+    1/2: weighted by omega the phase ended over 1 s after T, so a run of demo 0's duration plus
+    1.5 s ended 20 mm short. With the detour weight every demo start's phase ends by T + 0.5 s and
+    its tool is within 1 mm (LASA units) of the goal by then; no step enters the obstacle. The
+    compiled detour weight equals the Python one and is 1 across the band."""
+    from lfd.obstacles.avoidance import CONVERGENCE_BAND, DETOUR_HOLD
+
+    demos = lfd.load_demos("lasa:GShape")
+    field = lfd.train("tracking", demos, seed=0)
+    a = avoid(field, parse_obstacle("sphere:-20,5,3;margin=10.04", 2))
+    T = float(field.duration)
+    t = np.linspace(0.0, T + 0.5, int(100 * (T + 0.5)) + 1)
+    x, s = a.rollout_with_phase(demos.x[:, 0], t)
+    assert float(a.gamma(x.reshape(-1, 2)).min()) >= 1.0
+    assert float(a.gamma(x.reshape(-1, 2)).min()) < 1.0 + CONVERGENCE_BAND   # the detours are in the band
+    assert float(s[:, -1].min()) > 1.0 - 1e-3
+    assert float(np.linalg.norm(x[:, -1] - demos.goal, axis=1).max()) < 1.0
+    compiled, closure = a.point_band(hold=DETOUR_HOLD), a.point_band(compiled=False, hold=DETOUR_HOLD)
+    pts = x[:, ::25].reshape(-1, 2)
+    w = np.array([compiled(p) for p in pts])
+    np.testing.assert_allclose(w, [closure(p) for p in pts], atol=1e-12)
+    band = a.gamma(pts) <= 1.0 + CONVERGENCE_BAND
+    assert band.any() and np.all(w[band] == 1.0) and w.min() == 0.0
+
+
 def test_phased_field_steers_toward_its_runs_end() -> None:
     """A start-conditioned reference whose demos end apart ends at r(1 | x0), not at the mean goal:
     Eqs. (O2)-(O3) take r(1 | x0) as the goal of that run, so with an obstacle beside that end

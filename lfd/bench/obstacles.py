@@ -54,8 +54,11 @@ class ObstacleCell:
 
     @classmethod
     def make(cls, learner: str, shape: str, scene: int, convergence: bool = True, seed: int = 0) -> ObstacleCell:
+        from lfd.obstacles.avoidance import settings
+
         key = {"version": VERSION, "learner": learner, "shape": shape, "scene": scene,
-               "convergence": convergence, "seed": seed, "horizon": HORIZON, "steps": STEPS_PER_DURATION}
+               "convergence": convergence, "seed": seed, "horizon": HORIZON, "steps": STEPS_PER_DURATION,
+               "modulation": settings(learner == "tracking")}
         return cls(learner, shape, scene, convergence, seed, stable_hash(key))
 
     @property

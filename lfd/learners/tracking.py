@@ -288,8 +288,8 @@ class TrackingField(ContractingField):
 
         ``clock_weight``: x (d,) -> omega in [0, 1]; the phase stopping h of Eq. (T4) is then
         blended toward the clock, h + omega (1 - h) (Eq. (T4b) of docs/equations.md: an obstacle
-        wrapper passes its band weight of Eq. (O2), so the phase keeps its pace while the tool
-        detours). None (the default): Eq. (T4) as is."""
+        wrapper passes its detour weight, so the phase keeps its pace while the tool detours).
+        None (the default): Eq. (T4) as is."""
         mod = self.module
         ref, dref = mod.ref.numpy().copy(), mod.dref.numpy().copy()
         if x0 is not None and self.conditioned:

@@ -228,9 +228,10 @@ def modulate(x: np.ndarray, v: np.ndarray, P: np.ndarray) -> np.ndarray:  # prag
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True)
-def band_weight(x: np.ndarray, P: np.ndarray) -> float:  # pragma: no cover - compiled
-    """omega of Eq. (O2) at x, shape (d,): 1 on an obstacle's surface, 0 from Gamma = 1 + band on
-    (P from ``pack``; the band whether or not the field steers)."""
+def band_weight(x: np.ndarray, P: np.ndarray, hold: float) -> float:  # pragma: no cover - compiled
+    """A band weight at x, shape (d,): 1 up to Gamma = 1 + hold from the nearest obstacle, 0 from
+    Gamma = 1 + hold + band on (P from ``pack``; the band whether or not the field steers);
+    hold = 0 is omega of Eq. (O2)."""
     two = P[HEAD - 3] != 0.0
     x0, x1 = x[0], x[1]
     x2 = 0.0 if two else x[2]
@@ -242,4 +243,4 @@ def band_weight(x: np.ndarray, P: np.ndarray) -> float:  # pragma: no cover - co
         g = _geometry(P, k, x0, x1, x2)[0]
         if g < gmin:
             gmin = g
-    return _smoothstep((1.0 + P[2] - gmin) * P[3])
+    return _smoothstep((1.0 + hold + P[2] - gmin) * P[3])

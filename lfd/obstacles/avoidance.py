@@ -69,6 +69,20 @@ INSIDE_NR_FLOOR = 0.1
 CONVERGENCE_BAND = 0.5
 #: the modulation fades out within this fraction of the goal's clearance from an obstacle, Eq. (O3)
 GOAL_FADE = 0.5
+#: Eq. (T4b): the phase keeps the clock's pace up to Gamma = 1 + this, the whole band of Eq. (O2),
+#: and its weight falls to 0 over a further ``CONVERGENCE_BAND``
+DETOUR_HOLD = CONVERGENCE_BAND
+
+
+def settings(phased: bool) -> dict[str, float]:
+    """The modulation's constants, and with ``phased`` those of Eq. (T4b): what a cached result
+    of an avoiding field depends on beyond its inputs (benchmarks put them into their cache keys)."""
+    out = {"reactivity": REACTIVITY, "min_goal_gamma": MIN_GOAL_GAMMA, "gamma_floor": GAMMA_FLOOR,
+           "inside_nr_floor": INSIDE_NR_FLOOR, "band": CONVERGENCE_BAND, "goal_fade": GOAL_FADE,
+           "merge_power": MERGE_POWER}
+    if phased:
+        out["detour_hold"] = DETOUR_HOLD
+    return out
 
 
 def _smoothstep(u: float) -> float:
@@ -341,10 +355,11 @@ class AvoidingField(FieldWrapper):
             fades.append(0.0 if u.moving or not self.convergence else GOAL_FADE * length * (g - 1.0))
         return fades
 
-    def point_band(self, compiled: bool = True) -> Callable[[np.ndarray], float]:
-        """omega of Eq. (O2) for one point: x (d,) -> a float in [0, 1], 1 on an obstacle's surface
-        and 0 from Gamma = 1 + ``CONVERGENCE_BAND`` on (static obstacles; compiled like
-        ``point_modulator``)."""
+    def point_band(self, compiled: bool = True, hold: float = 0.0) -> Callable[[np.ndarray], float]:
+        """A band weight for one point: x (d,) -> a float in [0, 1], 1 up to Gamma = 1 + ``hold``
+        from the nearest obstacle and 0 from Gamma = 1 + ``hold`` + ``CONVERGENCE_BAND`` on, the
+        smoothstep between (static obstacles; compiled like ``point_modulator``). ``hold`` = 0 is
+        omega of Eq. (O2); ``DETOUR_HOLD`` is the detour weight of Eq. (T4b)."""
         if compiled and self._compilable():
             from lfd.obstacles._point_kernel import band_weight, pack
 
@@ -352,7 +367,7 @@ class AvoidingField(FieldWrapper):
                        _pad3(self.field.goal), (GAMMA_FLOOR, INSIDE_NR_FLOOR), self.dim == 2, MERGE_POWER, _EPS)
 
             def wc(x: np.ndarray) -> float:
-                return float(band_weight(x, prm))
+                return float(band_weight(x, prm, hold))
             return wc
         geoms = [u.point_geometry() for u in self.units]
         two, inv_band = self.dim == 2, 1.0 / CONVERGENCE_BAND
@@ -362,7 +377,7 @@ class AvoidingField(FieldWrapper):
             if not geoms:
                 return 0.0
             gmin = min(gm(x0, x1, x2, 0.0)[0] for gm in geoms)
-            return _smoothstep((1.0 + CONVERGENCE_BAND - gmin) * inv_band)
+            return _smoothstep((1.0 + hold + CONVERGENCE_BAND - gmin) * inv_band)
         return w
 
     def point_modulator(self, compiled: bool = True, goal: np.ndarray | None = None
@@ -485,9 +500,10 @@ class PhasedAvoidingField(AvoidingField):
     act on its x-velocity of Eq. (T3), with the run's end r(1 | x0) as the goal g (``run_goal``);
     its phase law is Eq. (T4b) of docs/equations.md.
 
-    Eq. (T4b) blends the phase stopping h of Eq. (T4) toward the clock by the band weight omega of
-    Eq. (O2), so the phase keeps the demos' pace while the tool goes around an obstacle (a detour
-    is not a hold-up) and is Eq. (T4) where omega = 0; the reference r(s) is the learned one. As s
+    Eq. (T4b) blends the phase stopping h of Eq. (T4) toward the clock by a detour weight, 1 across
+    the band of Eq. (O2) and 0 from Gamma = 1 + 2 beta on, so the phase keeps the demos' pace while
+    the tool goes around an obstacle (a detour is not a hold-up) and is Eq. (T4) further out; the
+    reference r(s) is the learned one. As s
     goes to 1 the field becomes K (r(1 | x0) - x), the linear case of Eqs. (O1)-(O3).
     """
 
@@ -524,13 +540,14 @@ class PhasedAvoidingField(AvoidingField):
         """(x (d,), s) -> (the avoiding dx/dt (d,), ds/dt) for one point, for the run started at x0.
 
         Eqs. (O1)-(O3) steer toward the run's end r(1 | x0) (``run_goal``). With ``convergence``
-        the phase law is Eq. (T4b): the phase stopping is blended toward the clock by omega of
-        Eq. (O2), so the phase keeps the demos' pace while the tool goes around an obstacle; a
-        ``clock_weight`` given by an outer wrapper is combined with it (the larger of the two)."""
+        the phase law is Eq. (T4b): the phase stopping is blended toward the clock by the detour
+        weight (``point_band`` with ``DETOUR_HOLD``: 1 across the band of Eq. (O2)), so the phase
+        keeps the demos' pace while the tool goes around an obstacle; a ``clock_weight`` given by
+        an outer wrapper is combined with it (the larger of the two)."""
         end = self.run_goal(x0)
         weight = clock_weight
         if self.convergence:
-            band = self.point_band()
+            band = self.point_band(hold=DETOUR_HOLD)
             weight = band if clock_weight is None else (lambda x: max(band(x), clock_weight(x)))
         base = self.field.phase_point_fn(x0, clock_weight=weight)
         mod = self.point_modulator(goal=None if np.array_equal(end, self.field.goal) else end)

@@ -68,8 +68,10 @@ class Cell:
         from lfd.obstacles.avoidance import settings
 
         self.learner, self.scene = learner, scene
-        self.hash = stable_hash({"v": 1, "learner": learner, "scene": scene, "scenarios": SCENARIOS,
-                                 "modulation": settings(learner == "tracking")})
+        from sim.pipeline import OBSTACLE_TIME_FACTOR
+
+        self.hash = stable_hash({"v": 2, "learner": learner, "scene": scene, "scenarios": SCENARIOS,
+                                 "modulation": settings(learner == "tracking"), "time_factor": OBSTACLE_TIME_FACTOR})
         self.stem = f"{learner}__scene{scene:03d}"
 
 
@@ -84,7 +86,7 @@ def compute(cell: Cell) -> tuple[dict, bytes]:
     from sim.collision import hand_margin_m
     from sim.controller import Gains
     from sim.obstacles import obstacle_contacts
-    from sim.pipeline import OBSTACLE_LEAD_S, grown
+    from sim.pipeline import OBSTACLE_LEAD_S, OBSTACLE_TIME_FACTOR, grown
 
     demos = spiral3()
     robot = load_robot("panda")
@@ -92,7 +94,8 @@ def compute(cell: Cell) -> tuple[dict, bytes]:
     probe = sim.Experiment(robot, demos, clearance=None)
     scale = probe.placement.scale
     scene = user_case(demos) if cell.scene == 0 else random_scene(demos, cell.scene, extra_margin=hand / scale)
-    exp = sim.Experiment(robot, demos, obstacles=scene, gains=Gains(lead_s=OBSTACLE_LEAD_S))
+    exp = sim.Experiment(robot, demos, obstacles=scene, gains=Gains(lead_s=OBSTACLE_LEAD_S),
+                         time_factor=OBSTACLE_TIME_FACTOR)   # as sim.run_job builds it with obstacles
     field, _, _ = cached_field(cell.learner, demos, 0, {}, verbose=False)
     avoiding = lfd.avoid(field, grown(scene, hand / scale))
     runs = []
@@ -166,9 +169,10 @@ def report(recs: list[dict], placements: int) -> list[str]:
              "3-10 % of the extent, margins 0-4 %, a quarter beside the goal). Default job options: the "
              f"field keeps the tool point the hand's size ({hand * 1e3:.1f} mm, `sim.collision.hand_margin_m`) "
              "plus the obstacle's margin away; collision dampers in the IK keep every arm geom 10 mm clear "
-             "(`sim.collision`). *Contact steps*: replayed states in which any robot geom touches any "
-             f"obstacle. *Reached*: final tool position within {GOAL_MM:g} mm of the goal. *Blocked*: the run "
-             "ended further away with a damper holding the arm (metrics.json `blocked`).", "",
+             "(`sim.collision`); each run lasts 3 x the demo's duration plus 1.5 s "
+             "(`sim.pipeline.OBSTACLE_TIME_FACTOR`). *Contact steps*: replayed states in which any robot geom "
+             f"touches any obstacle. *Reached*: final tool position within {GOAL_MM:g} mm of the goal. "
+             "*Blocked*: the run ended further away with a damper holding the arm (metrics.json `blocked`).", "",
              "| learner | scenario | runs | contact steps | reached | blocked | neither | worst goal error (mm) "
              "| min clearance (mm) | median RTF |",
              "|---|---|---|---|---|---|---|---|---|---|"]

@@ -1,8 +1,8 @@
 """An experiment: one robot, one demonstration set and its placement, run under named perturbation
 scenarios with any learned field, scored (``sim.metrics``) and optionally filmed (``sim.render``).
 
-The run starts at the start of demo ``demo_index`` and lasts that demo's duration plus
-``settle_s``. Push metrics compare with the same run without the push, which is run (once per
+The run starts at the start of demo ``demo_index`` and lasts ``time_factor`` times that demo's
+duration plus ``settle_s``. Push metrics compare with the same run without the push, which is run (once per
 field) when needed.
 
 A ``FieldKind.PHASED`` field (``lfd.learners.tracking``) runs through ``sim.loop.PhaseLoop`` (the loop
@@ -20,6 +20,7 @@ unless a placement is given, and its runs add ``sim.metrics.orientation_metrics`
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -123,7 +124,10 @@ class Experiment:
         The demo whose start and duration the runs take.
     control_hz, ik, gains, feedforward : as ``sim.make_environment``.
     settle_s : float
-        Run time after the demo's duration, s.
+        Run time after ``time_factor`` times the demo's duration, s.
+    time_factor : float
+        The run lasts this many times the demo's duration before ``settle_s`` (default 1; a detour
+        around obstacles takes longer than the demo did).
     fps : float
         Rate at which the rollouts keep the full qpos for video, frames per simulated second.
     obstacles : sequence of ``lfd.obstacles.Obstacle``
@@ -140,7 +144,7 @@ class Experiment:
                  control_hz: float = 500.0, ik: str = "dls",
                  settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True,
                  fps: float = FPS, obstacles: Sequence[Obstacle] = (),
-                 clearance: Clearance | str | None = "auto") -> None:
+                 clearance: Clearance | str | None = "auto", time_factor: float = 1.0) -> None:
         self.robot, self.demos = robot, demos
         chart = None
         if demos.has_orientation:
@@ -173,7 +177,9 @@ class Experiment:
         self.demo_world = self.placement.to_world(demos.x[demo_index])
         self.demo_rotations = self.placement.rotation_to_world(demos.x[demo_index]) if self.placement.pose else None
         self.start = demos.x[demo_index, 0].copy()
-        self.duration_s = float(self.demo_t[-1]) + settle_s
+        if not (math.isfinite(time_factor) and 1.0 <= time_factor <= 100.0):
+            raise SimError(f"time_factor must be in [1, 100], got {time_factor}")
+        self.duration_s = float(time_factor) * float(self.demo_t[-1]) + settle_s
         if isinstance(clearance, str):
             if clearance != "auto":
                 raise SimError(f"clearance must be a Clearance, None or 'auto', not '{clearance}'")

@@ -52,6 +52,9 @@ DEFAULT_LEARNERS = ("node", "contraction")
 SIDE_BY_SIDE_LEARNERS = ("node", "contraction", "tracking")
 #: the controller's phase lead with obstacles (``sim.controller.Gains.lead_s``), s
 OBSTACLE_LEAD_S = 0.01
+#: with obstacles a run lasts this many times the demo's duration (then the settling time): the
+#: horizon at which the field-level benchmark asks every start to have arrived (``lfd.bench.obstacles``)
+OBSTACLE_TIME_FACTOR = 3.0
 
 
 @dataclass(frozen=True)
@@ -339,7 +342,8 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
     exp = Experiment(robot, demos, placement=placement_of(job, robot, demos), plane=job.plane, size_m=job.size_m,
                      control_hz=job.control_hz, ik=job.ik, fps=job.fps, obstacles=obstacles,
                      gains=Gains(lead_s=OBSTACLE_LEAD_S) if obstacles else Gains(),
-                     clearance="auto" if job.arm_clearance else None)
+                     clearance="auto" if job.arm_clearance else None,
+                     time_factor=OBSTACLE_TIME_FACTOR if obstacles else 1.0)
     hand = hand_margin_m(robot) if job.arm_clearance else 0.0
     avoided = grown(obstacles, hand / exp.placement.scale)
     for o, g in zip(obstacles, avoided):

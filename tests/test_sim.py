@@ -123,6 +123,17 @@ def test_the_robot_is_the_one_source_of_the_actuation(planar, demos):
         sim.Experiment(planar, demos, actuation="torque")  # type: ignore[call-arg]
 
 
+def test_run_length_is_time_factor_times_the_demo_plus_settling(planar, demos):
+    from sim.errors import SimError
+
+    demo_s = float(demos.t[0, -1] - demos.t[0, 0])
+    assert abs(sim.Experiment(planar, demos, settle_s=0.5, time_factor=3.0).duration_s - (3 * demo_s + 0.5)) < 1e-12
+    assert abs(sim.Experiment(planar, demos, settle_s=0.5).duration_s - (demo_s + 0.5)) < 1e-12
+    for bad in (0.5, float("nan"), 1e9):
+        with pytest.raises(SimError, match="time_factor must be in"):
+            sim.Experiment(planar, demos, time_factor=bad)
+
+
 def test_environment_reset_and_step(panda, demos):
     pl = sim.Placement.auto(panda, demos.x)
     env = sim.make_environment(panda, pl, demos.x[0, 0], demos.goal, duration_s=0.02)

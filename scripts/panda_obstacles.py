@@ -66,10 +66,9 @@ class Cell:
     def __init__(self, learner: str, scene: int) -> None:
         from lfd.bench.protocol import stable_hash
         from lfd.obstacles.avoidance import settings
-
-        self.learner, self.scene = learner, scene
         from sim.pipeline import OBSTACLE_TIME_FACTOR
 
+        self.learner, self.scene = learner, scene
         self.hash = stable_hash({"v": 2, "learner": learner, "scene": scene, "scenarios": SCENARIOS,
                                  "modulation": settings(learner == "tracking"), "time_factor": OBSTACLE_TIME_FACTOR})
         self.stem = f"{learner}__scene{scene:03d}"
@@ -160,6 +159,8 @@ COST_HEADING = "## What whole-arm clearance costs per control step"
 def report(recs: list[dict], placements: int) -> list[str]:
     import numpy as np
 
+    from sim.pipeline import OBSTACLE_TIME_FACTOR
+
     hand = recs[0]["hand_margin_m"] if recs else float("nan")
     scale = recs[0]["scale_m_per_unit"] if recs else float("nan")
     lines = ["# Whole-arm safety on the Panda: obstacle scenes, every learner, with and without a push", "",
@@ -169,7 +170,7 @@ def report(recs: list[dict], placements: int) -> list[str]:
              "3-10 % of the extent, margins 0-4 %, a quarter beside the goal). Default job options: the "
              f"field keeps the tool point the hand's size ({hand * 1e3:.1f} mm, `sim.collision.hand_margin_m`) "
              "plus the obstacle's margin away; collision dampers in the IK keep every arm geom 10 mm clear "
-             "(`sim.collision`); each run lasts 3 x the demo's duration plus 1.5 s "
+             f"(`sim.collision`); each run lasts {OBSTACLE_TIME_FACTOR:g} x the demo's duration plus 1.5 s "
              "(`sim.pipeline.OBSTACLE_TIME_FACTOR`). *Contact steps*: replayed states in which any robot geom "
              f"touches any obstacle. *Reached*: final tool position within {GOAL_MM:g} mm of the goal. "
              "*Blocked*: the run ended further away with a damper holding the arm (metrics.json `blocked`).", "",

@@ -145,6 +145,8 @@ class Experiment:
                  settle_s: float = 1.5, gains: Gains = Gains(), feedforward: bool = True,
                  fps: float = FPS, obstacles: Sequence[Obstacle] = (),
                  clearance: Clearance | str | None = "auto", time_factor: float = 1.0) -> None:
+        if not (isinstance(time_factor, (int, float)) and math.isfinite(time_factor) and 1.0 <= time_factor <= 100.0):
+            raise SimError(f"time_factor must be in [1, 100], got {time_factor!r}")
         self.robot, self.demos = robot, demos
         chart = None
         if demos.has_orientation:
@@ -177,8 +179,6 @@ class Experiment:
         self.demo_world = self.placement.to_world(demos.x[demo_index])
         self.demo_rotations = self.placement.rotation_to_world(demos.x[demo_index]) if self.placement.pose else None
         self.start = demos.x[demo_index, 0].copy()
-        if not (math.isfinite(time_factor) and 1.0 <= time_factor <= 100.0):
-            raise SimError(f"time_factor must be in [1, 100], got {time_factor}")
         self.duration_s = float(time_factor) * float(self.demo_t[-1]) + settle_s
         if isinstance(clearance, str):
             if clearance != "auto":

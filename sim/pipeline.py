@@ -53,7 +53,8 @@ SIDE_BY_SIDE_LEARNERS = ("node", "contraction", "tracking")
 #: the controller's phase lead with obstacles (``sim.controller.Gains.lead_s``), s
 OBSTACLE_LEAD_S = 0.01
 #: with obstacles a run lasts this many times the demo's duration (then the settling time): the
-#: horizon at which the field-level benchmark asks every start to have arrived (``lfd.bench.obstacles``)
+#: horizon at which the field-level benchmark asks every start to have arrived (``lfd.bench.obstacles``
+#: HORIZON; a literal here, since importing ``lfd.bench`` would load torch with the job)
 OBSTACLE_TIME_FACTOR = 3.0
 
 

@@ -266,7 +266,7 @@ def test_blocked_runs_are_said_on_stderr(tmp_path, monkeypatch, capsys) -> None:
 
 def test_runs_that_end_short_with_nothing_in_the_way_say_so(tmp_path, monkeypatch, capsys) -> None:
     """A field too slow to arrive (a linear sink at 0.01/s) with a sphere off its path: the run ends
-    about 30 mm from its goal and no damper holds it back: ``stopped_short`` (not ``blocked``) in the
+    more than 20 mm from its goal and no damper holds it back: ``stopped_short`` (not ``blocked``) in the
     metrics, one ``short:`` line on stderr. The blocked run of the test above is not short."""
     from known_fields import sink_field
 

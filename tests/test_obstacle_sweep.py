@@ -18,13 +18,21 @@ def test_cell_keys_follow_the_modulations_constants(monkeypatch: pytest.MonkeyPa
     reused); the detour weight of Eq. (T4b) acts on phased fields only, so it re-keys the tracking
     cells alone."""
     node, tracking = ObstacleCell.make("node", "lasa:Snake", 6), ObstacleCell.make("tracking", "lasa:Snake", 6)
+    plain = ObstacleCell.make("node", "lasa:Snake", 6, convergence=False)
     assert node.hash == ObstacleCell.make("node", "lasa:Snake", 6).hash
     monkeypatch.setattr(avoidance, "DETOUR_HOLD", 0.25)
     assert ObstacleCell.make("node", "lasa:Snake", 6).hash == node.hash
     assert ObstacleCell.make("tracking", "lasa:Snake", 6).hash != tracking.hash
     monkeypatch.setattr(avoidance, "CONVERGENCE_BAND", 0.75)
     assert ObstacleCell.make("node", "lasa:Snake", 6).hash != node.hash
-    assert ObstacleCell.make("node", "lasa:Snake", 6, convergence=False).hash != node.hash
+    assert ObstacleCell.make("node", "lasa:Snake", 6, convergence=False).hash != plain.hash
+
+
+def test_the_arm_job_gives_obstacle_runs_the_sweeps_horizon() -> None:
+    from lfd.bench.obstacles import HORIZON
+    from sim.pipeline import OBSTACLE_TIME_FACTOR
+
+    assert OBSTACLE_TIME_FACTOR == HORIZON
 
 
 def test_cells_are_dealt_round_robin_over_the_shapes() -> None:

@@ -515,12 +515,11 @@ def test_tracking_phase_keeps_its_pace_while_the_tool_detours(scene: int) -> Non
 
 def test_tracking_phase_keeps_the_demos_pace_in_mid_band() -> None:
     """Eq. (T4b) with the detour weight: GShape with a sphere on its path grown by a Panda hand's
-    size (the user's ``demo_arm.py --demos lasa:GShape --obstacle sphere:-20,5,3`` at 2.81 mm per
-    unit). The tool goes round in mid-band (1 < Gamma < 1.5), where omega of Eq. (O2) is about
-    1/2: weighted by omega the phase ended over 1 s after T, so a run of demo 0's duration plus
-    1.5 s ended 20 mm short. With the detour weight every demo start's phase ends by T + 0.5 s and
-    its tool is within 1 mm (LASA units) of the goal by then; no step enters the obstacle. The
-    compiled detour weight equals the Python one and is 1 across the band."""
+    size (``demo_arm.py --demos lasa:GShape --obstacle sphere:-20,5,3``; reports/obstacles_arm.md).
+    The tool goes round in mid-band (1 < Gamma < 1.5), where omega of Eq. (O2) is about 1/2, so
+    weighting by omega would slow the phase there. With the detour weight every demo start's phase
+    ends by T + 0.5 s and its tool is within 1 mm (LASA units) of the goal by then; no step enters
+    the obstacle. The compiled detour weight equals the Python one and is 1 across the band."""
     from lfd.obstacles.avoidance import CONVERGENCE_BAND, DETOUR_HOLD
 
     demos = lfd.load_demos("lasa:GShape")

@@ -36,8 +36,18 @@ import torch
 from torch import Tensor
 
 from lfd import integrate
+from lfd.errors import ConfigError
 from lfd.normalization import Normalization
 from lfd.pose import PoseChart
+from lfd.runner import (
+    PhaseRunner,
+    PointRunner,
+    Runner,
+    TimedRunner,
+    phase_trajectory,
+    point_trajectory,
+    timed_trajectory,
+)
 from lfd.threads import torch_threads
 
 #: batches of up to this many points are evaluated point by point (``VelocityField.__call__``)
@@ -125,6 +135,15 @@ class Field(Protocol):
         """The fast per-point function (see the class docstring)."""
         ...
 
+    def runner(self, start: np.ndarray | None, dt: float) -> Runner:
+        """The run from ``start``, shape (d,), stepped every ``dt`` s (``lfd.runner``)."""
+        ...
+
+    def trajectory(self, x0: np.ndarray, t: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
+        """Single-start RK4 (Eq. (8)) from x0, shape (d,), over t, shape (T,): x (T, d) and the
+        phase (T,) of a field that has one, else None."""
+        ...
+
     def __call__(self, x: np.ndarray, *args: Any) -> np.ndarray:
         """dx/dt at x, shape (..., d) (and the time t [s] for ``FieldKind.TIME_VARYING``)."""
         ...
@@ -161,6 +180,27 @@ class PhasedField(Field, Protocol):
 def is_phased(field: Field) -> TypeGuard[PhasedField]:
     """Whether ``field`` declares ``FieldKind.PHASED`` (narrows it to ``PhasedField``)."""
     return field.kind is FieldKind.PHASED
+
+
+class PhasedRuns:
+    """The runs of a ``FieldKind.PHASED`` field (mixed into ``lfd.learners.tracking.TrackingField``
+    and ``lfd.obstacles.PhasedAvoidingField``): (x, s) of Eqs. (T3)-(T4), from its
+    ``phase_point_fn``, ``initial_phase``, ``reference`` and ``duration``."""
+
+    kind: ClassVar[FieldKind] = FieldKind.PHASED
+
+    def runner(self, start: np.ndarray | None, dt: float) -> Runner:
+        """A ``lfd.runner.PhaseRunner`` conditioned on ``start``, shape (d,)."""
+        me: Any = self
+        start_c = None if start is None else np.asarray(start, dtype=np.float64).copy()
+        return PhaseRunner(me.phase_point_fn(start_c), dt, float(me.initial_phase()),
+                           lambda s: me.reference(s, start_c), float(me.duration))
+
+    def trajectory(self, x0: np.ndarray, t: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
+        """RK4 of (x, s) from x0, shape (d,), and the initial phase over t, shape (T,)."""
+        me: Any = self
+        x0 = np.asarray(x0, dtype=np.float64)
+        return phase_trajectory(me.phase_point_fn(x0), x0, t, substeps, float(me.initial_phase()))
 
 
 def cached_single_point_evaluator(field: Any) -> Callable[..., np.ndarray]:
@@ -223,6 +263,53 @@ class VelocityField:
     def space(self) -> StateSpace:
         """``StateSpace.POSE`` with a chart, else ``StateSpace.POSITION``."""
         return StateSpace.POSITION if self.chart is None else StateSpace.POSE
+
+    def toward(self, goal: np.ndarray) -> VelocityField:
+        """The same learned motion, run toward ``goal`` instead of the demos' mean end.
+
+        The field is learned relative to its goal (f(x) = s f_n((x - g) / s), ``lfd.normalization``),
+        so moving the goal moves the whole motion with it: positions by translation, and a pose
+        field's orientations by its chart moved to the new goal orientation (Eq. (P1) at R_g').
+        Every constant of the field (a contraction rate, its metric bounds, a Lipschitz bound) is
+        the same for any goal.
+
+        Parameters
+        ----------
+        goal : array, shape (d,)
+            The new goal, task units; a pose field takes the position (3,) or the pose (7,),
+            x, y, z, qw, qx, qy, qz (the orientation unchanged when only the position is given).
+
+        Returns
+        -------
+        VelocityField
+            A field of the same class and learner, sharing this one's weights.
+        """
+        g = np.asarray(goal, dtype=np.float64).reshape(-1)
+        chart = self.chart
+        new_goal = self.norm.goal.copy()
+        if chart is None:
+            if g.shape != (self.dim,):
+                raise ConfigError(f"the goal must have {self.dim} coordinates, got {g.shape[0]}")
+            new_goal = g
+        else:
+            if g.shape not in ((3,), (7,)):
+                raise ConfigError(f"a pose goal is x,y,z or x,y,z,qw,qx,qy,qz, got {g.shape[0]} values")
+            new_goal[:3] = g[:3]
+            if g.shape == (7,):
+                q = g[3:]
+                norm = float(np.linalg.norm(q))
+                if not (np.isfinite(q).all() and abs(norm - 1.0) <= 0.01):
+                    raise ConfigError(f"the goal's quaternion must be a unit quaternion (w, x, y, z), got {q.tolist()}")
+                chart = PoseChart.at(q / norm, chart.length)
+        if not np.isfinite(new_goal).all():
+            raise ConfigError(f"the goal must be finite, got {g.tolist()}")
+        box = None
+        if self.demo_box is not None:
+            shift = np.zeros(self.dim)
+            shift[: 3 if chart is not None else self.dim] = (new_goal - self.norm.goal)[: 3 if chart is not None else None]
+            box = (self.demo_box[0] + shift, self.demo_box[1] + shift)
+        return type(self)(self.module, Normalization(goal=new_goal, scale=self.norm.scale), self.learner,
+                          self.config, self.history, demo_box=box, chart=chart)
 
     def pose_velocity(self, x: np.ndarray, q: np.ndarray) -> np.ndarray:
         """The twist (v [m/s], omega [rad/s], world axes), shape (6,), of a pose field at the pose
@@ -310,6 +397,14 @@ class VelocityField:
         array, shape (B, T, d) (or (T, d) for one start)
         """
         return integrate.rollout(self, x0, t, method, substeps)
+
+    def runner(self, start: np.ndarray | None, dt: float) -> Runner:
+        """A ``lfd.runner.PointRunner`` of the single-point evaluator (``start`` is not needed)."""
+        return PointRunner(cached_single_point_evaluator(self), dt)
+
+    def trajectory(self, x0: np.ndarray, t: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
+        """Single-start numpy RK4 (Eq. (8)) from x0, shape (d,), over t, shape (T,): (x (T, d), None)."""
+        return point_trajectory(cached_single_point_evaluator(self), x0, t, substeps)
 
     def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
         """The fast path for one point, for control loops: ``field(x)`` on x of shape (d,) calls it.
@@ -456,3 +551,38 @@ class FieldWrapper:
     def goal_samples(self) -> np.ndarray:
         """Every place the goal visits, shape (G, d): the wrapped field's."""
         return self.field.goal_samples()
+
+    def runner(self, start: np.ndarray | None, dt: float) -> Runner:
+        """A ``lfd.runner.TimedRunner`` of the single-point evaluator, (x, t) -> dx/dt."""
+        return TimedRunner(cached_single_point_evaluator(self), dt)
+
+    def trajectory(self, x0: np.ndarray, t: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
+        """Single-start numpy RK4 (Eq. (8)) of f(x, t) from x0, shape (d,), over t, shape (T,)."""
+        return timed_trajectory(cached_single_point_evaluator(self), x0, t, substeps)
+
+
+def require_kind(field: Field, kinds: tuple[FieldKind, ...], what: str) -> None:
+    """``ConfigError`` saying that ``what`` does not apply to ``field`` unless its kind is one of ``kinds``."""
+    if field.kind not in kinds:
+        raise ConfigError(f"{what} does not apply to the {field.learner} learner's field "
+                          f"({field.kind.value}; it takes {', '.join(k.value for k in kinds)} fields)")
+
+
+def by_kind(field: Field, table: dict[FieldKind, Any]) -> Any:
+    """The entry of ``table`` for the field's kind (``ConfigError`` naming the kinds it has)."""
+    if field.kind not in table:
+        require_kind(field, tuple(table), "this")
+    return table[field.kind]
+
+
+def space_mismatch(field: Field, chart: PoseChart | None) -> str | None:
+    """Why ``field`` cannot run on a task whose orientation chart is ``chart`` (None: a position
+    task), or None when it can: a pose field on positions, a position field on poses, or a pose
+    field learned at another goal orientation."""
+    own = field.chart
+    if (own is None) != (chart is None):
+        return (f"a {'pose' if own is not None else 'position'} field cannot run on "
+                f"{'poses' if chart is not None else 'positions'}")
+    if own is not None and chart is not None and not np.allclose(own.goal_rotation, chart.goal_rotation, atol=1e-9):
+        return "the pose field's goal orientation is not this task's"
+    return None

@@ -43,7 +43,7 @@ from torch import nn
 
 from lfd import integrate
 from lfd.demos import DemoSet
-from lfd.field import ContractingField, FieldKind, VelocityField
+from lfd.field import ContractingField, PhasedRuns, VelocityField
 from lfd.learners.base import Learner
 from lfd.validate import check_bools, check_ints, check_positive
 
@@ -198,7 +198,7 @@ class TrackingModule(nn.Module):
         return self.velocity(x, s)[0]
 
 
-class TrackingField(ContractingField):
+class TrackingField(PhasedRuns, ContractingField):
     """A field contracting toward a learned reference motion, in phase (module docstring).
 
     The state is (x, s). ``rollout`` integrates both from s = 0 and returns x; ``velocity(x, s)``
@@ -207,7 +207,6 @@ class TrackingField(ContractingField):
     """
 
     module: TrackingModule
-    kind: ClassVar[FieldKind] = FieldKind.PHASED
 
     # ---- the contraction certificate's constants (``rate`` is K of Eq. (T3), 1/s)
     @property

@@ -42,12 +42,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
 from lfd.errors import ConfigError
-from lfd.field import FieldKind, FieldWrapper, cached_single_point_evaluator, is_phased, is_time_varying
+from lfd.field import FieldWrapper, PhasedRuns, cached_single_point_evaluator, is_phased, is_time_varying
 from lfd.integrate import rk4_phase, rk4_step
 from lfd.obstacles.groups import MERGE_POWER, _group
 from lfd.obstacles.parse import parse_obstacle
@@ -495,7 +495,7 @@ class AvoidingField(FieldWrapper):
         return f"{type(self).__name__}({self.field!r}, {len(self.obstacles)} obstacles)"
 
 
-class PhasedAvoidingField(AvoidingField):
+class PhasedAvoidingField(PhasedRuns, AvoidingField):
     """``AvoidingField`` around a field with a phase (``lfd.learners.tracking``): Eqs. (O1)-(O3)
     act on its x-velocity of Eq. (T3), with the run's end r(1 | x0) as the goal g (``run_goal``);
     its phase law is Eq. (T4b) of docs/equations.md.
@@ -507,7 +507,6 @@ class PhasedAvoidingField(AvoidingField):
     goes to 1 the field becomes K (r(1 | x0) - x), the linear case of Eqs. (O1)-(O3).
     """
 
-    kind: ClassVar[FieldKind] = FieldKind.PHASED
     field: Any   # a PhasedField (``lfd.field.PhasedField``)
 
     def __init__(self, field: Any, obstacles: Sequence[Obstacle], **kw: Any) -> None:

@@ -305,8 +305,9 @@ class VelocityField:
             raise ConfigError(f"the goal must be finite, got {g.tolist()}")
         box = None
         if self.demo_box is not None:
-            shift = np.zeros(self.dim)
-            shift[: 3 if chart is not None else self.dim] = (new_goal - self.norm.goal)[: 3 if chart is not None else None]
+            shift = new_goal - self.norm.goal
+            if chart is not None:   # the chart's rotation coordinates stay those of the new chart
+                shift[3:] = 0.0
             box = (self.demo_box[0] + shift, self.demo_box[1] + shift)
         return type(self)(self.module, Normalization(goal=new_goal, scale=self.norm.scale), self.learner,
                           self.config, self.history, demo_box=box, chart=chart)

@@ -12,7 +12,7 @@ Step by step::
 
     demos = lfd.load_demos("spiral")
     field = lfd.train("contraction", demos)
-    exp = sim.Experiment(load_robot("panda", actuation="torque"), demos)   # placement + reach check
+    exp = sim.Experiment(load_robot("panda", actuation="torque"), demos)   # sim.RunSetup: placement, reach
     result = exp.run(field, "push")               # scenarios: sim.SCENARIOS
     print(result.metrics)                          # sim.metrics: tracking, imitation, recovery, ...
     exp.render(result, "push.mp4")
@@ -22,12 +22,11 @@ As a dm_env environment (for RL; gymnasium through ``shimmy.DmControlCompatibili
     env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
     ts = env.step(v)                               # v: task velocity, shape (d,)
 
-The top level is what a user of the arm needs (``__all__``); the lower layer lives in its modules:
-``sim.task`` (``ArmPhysics``, ``FieldTrackingTask``), ``sim.env`` (``FieldEnvironment``, the dm_env
-environment with the loop's lean step), ``sim.loop`` (the closed loop),
-``sim.controller`` (twist -> IK -> actuators), ``sim.render`` (videos), ``sim.metrics`` (scores),
-``sim.obstacles`` (obstacles as MuJoCo geoms, contacts), ``sim.collision`` (whole-arm collision
-dampers in the IK, the hand margin), ``sim.errors`` (``SimError`` and its kinds).
+The top level is what a user of the arm needs (``__all__``); the rest lives in its modules:
+``sim.setup`` (a run's setup, resolved once), ``sim.step`` (the control step), ``sim.task`` and
+``sim.env`` (the dm_control task and environment), ``sim.loop`` (the recorded closed loop),
+``sim.controller`` (twist -> IK -> actuators), ``sim.render``, ``sim.metrics``, ``sim.obstacles``,
+``sim.collision`` (whole-arm dampers), ``sim.errors``.
 """
 
 from __future__ import annotations
@@ -43,21 +42,21 @@ from sim.errors import SimError  # noqa: E402
 # for mujoco and torch before its main has taken over Ctrl-C and SIGTERM (lfd.interrupts).
 # public name -> the module that defines it
 _LAZY: dict[str, str] = {
-    "SCENARIOS": "sim.experiment", "Experiment": "sim.experiment", "RunResult": "sim.experiment",
+    "ArmJob": "sim.pipeline", "run_job": "sim.pipeline",
+    "SCENARIOS": "sim.experiment", "Experiment": "sim.experiment", "RunSetup": "sim.setup",
+    "Placement": "sim.placement", "make_environment": "sim.env",
     "GoalShift": "sim.perturbations", "JointVelocityNoise": "sim.perturbations", "Push": "sim.perturbations",
     "StartOffset": "sim.perturbations",
-    "ArmJob": "sim.pipeline", "JobReport": "sim.pipeline", "PushSpec": "sim.pipeline", "run_job": "sim.pipeline",
-    "Placement": "sim.placement",
-    "OBSERVATION_KEYS": "sim.task", "make_environment": "sim.task",
 }
 
 TYPE_CHECKING = False
 if TYPE_CHECKING:
-    from sim.experiment import SCENARIOS, Experiment, RunResult
+    from sim.env import make_environment
+    from sim.experiment import SCENARIOS, Experiment
     from sim.perturbations import GoalShift, JointVelocityNoise, Push, StartOffset
-    from sim.pipeline import ArmJob, JobReport, PushSpec, run_job
+    from sim.pipeline import ArmJob, run_job
     from sim.placement import Placement
-    from sim.task import OBSERVATION_KEYS, make_environment
+    from sim.setup import RunSetup
 
 
 # ``import sim; sim.loop`` worked when this file imported its modules eagerly
@@ -65,6 +64,6 @@ __getattr__ = lazy_getattr("sim", _LAZY)
 
 
 __all__ = [
-    "ArmJob", "Experiment", "GoalShift", "JobReport", "JointVelocityNoise", "OBSERVATION_KEYS", "Placement",
-    "Push", "PushSpec", "RunResult", "SCENARIOS", "SimError", "StartOffset", "make_environment", "run_job",
+    "ArmJob", "Experiment", "GoalShift", "JointVelocityNoise", "Placement", "Push", "RunSetup", "SCENARIOS",
+    "SimError", "StartOffset", "make_environment", "run_job",
 ]

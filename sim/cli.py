@@ -17,7 +17,7 @@ from lfd.interrupts import run_main
 from lfd.interrupts import say as _say
 
 if TYPE_CHECKING:
-    from sim.pipeline import ArmJob
+    from sim.job import ArmJob
 
 __all__ = ["build_parser", "job_from_args", "main"]
 
@@ -195,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJob:
     """The ``ArmJob`` of parsed flags."""
-    from sim.pipeline import ArmJob, PushSpec
+    from sim.job import ArmJob, PushSpec
 
     learners = None if args.learner is None else (
         ("node", "contraction") if args.learner == "both" else (args.learner,))

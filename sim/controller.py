@@ -103,7 +103,8 @@ class FieldController:
     ik : str
         Differential IK back-end (``robots.IK_BACKENDS``).
     rotation_ref : ndarray, shape (3, 3), optional
-        Tool orientation to hold on a spatial arm (default: the one at ``reset``).
+        Tool orientation to hold on a spatial arm on a position task (``RunSetup.rotation_ref``;
+        None: the orientation is not held).
     gains : Gains
     feedforward : bool
         Position servos: the velocity feed-forward (module docstring).
@@ -175,7 +176,8 @@ class FieldController:
         self._plane = placement.dim == 2 and not self.robot.planar
         self._chart = placement.chart
         self._pose = placement.chart is not None
-        self._spatial = not self.robot.planar and not self._pose     # holds R at R_ref
+        # holds R at R_ref (a spatial arm on a position task)
+        self._spatial = not self.robot.planar and not self._pose and self.rotation_ref is not None
         self._rot_t = np.ascontiguousarray(placement.rotation.T)
         self._rot = np.ascontiguousarray(placement.rotation)
         self._z = np.zeros(6)
@@ -258,13 +260,11 @@ class FieldController:
                                self._dofs.astype(np.float64)]).astype(np.float64)
 
     def reset(self, q: np.ndarray) -> None:
-        """Start a run at rest at q, shape (n,); sets R_ref to the tool orientation there if unset."""
+        """Start a run at rest at q, shape (n,)."""
         self._qdot_prev = np.zeros(self.robot.n)
         self._v_prev = None
         self._kin_q = None
         self.kin.update(np.asarray(q, dtype=np.float64))
-        if self.rotation_ref is None and self._spatial:
-            self.rotation_ref = self.kin.ee_rotation().copy()
         if self._prm is not None and self.rotation_ref is not None:
             self._prm[_HEADER:_HEADER + 9] = self.rotation_ref.reshape(9)
         if self._kernel is not None:   # compile (or load from the cache) now, not in the first control step
@@ -342,7 +342,7 @@ class FieldController:
             tw[:3] = self._sA.dot(v) - self._kn_n * (self._normal.dot(self.kin.ee_position()) - self._n_o)
         else:
             tw[:3] = self._sA.dot(v)
-        if self._spatial and self.rotation_ref is not None:   # set by reset() on a spatial arm
+        if self._spatial and self.rotation_ref is not None:
             tw[3:] = self._kr * pin.log3(self.rotation_ref.dot(self.kin.ee_rotation().T))
         return tw
 

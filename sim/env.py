@@ -1,37 +1,26 @@
-"""The dm_env environment of ``sim.make_environment``: dm_control's ``control.Environment`` with a
-lean ``step`` for a ``sim.task.FieldTrackingTask``.
+"""The dm_env environment: ``make_environment`` and ``FieldEnvironment``, dm_control's
+``control.Environment`` with a lean ``step`` for a ``sim.task.FieldTrackingTask``.
 
 ``FieldEnvironment.step`` keeps the dm_env API of ``control.Environment`` exactly (the same
 ``TimeStep``: step type, reward, discount, and the observation ``OrderedDict`` with the keys,
 dtypes and shapes of ``observation_spec()``; the same time limit, reset-after-LAST and
-``PhysicsError`` on a new MuJoCo warning) and runs the control step of ``sim.loop.execute``:
-``mj_step1`` (with ``FieldController.split``), the tool pose, the controller's command and
-the step's perturbations (``FieldTrackingTask.apply``), ``mj_step2`` (or ``mj_step`` without the
-split), all on the raw ``physics.model.ptr`` / ``physics.data.ptr``; then ``mj_kinematics`` so the
-observation (and ``physics.data``) describes the new joints, and the reward and observation from
-``FieldTrackingTask.outputs`` (for a position task one compiled pass that writes every observed
-value into one fresh array, whose slices are the observation's arrays). Each observation holds
-fresh arrays: a later step does not change an observation kept from an earlier one.
+``PhysicsError`` on a new MuJoCo warning) and runs the task's control step (``sim.step.ControlStep``,
+the loop's own: ``begin``, ``command``, ``end``) on the raw MuJoCo model and data; then
+``mj_kinematics`` so the observation describes the new joints, and the reward and observation
+from ``FieldTrackingTask.outputs`` (for a position task one compiled pass into one fresh array).
+Each observation holds fresh arrays: a later step does not change an observation kept earlier.
 
-Warnings: dm_control raises ``PhysicsError`` for a warning counter that grew during
-``Physics.step``; this step compares the counters once a step, with those at the end of the last
-step (or the reset), so a warning raised by hand between two steps (a direct ``mj_forward`` in a
-bad state) is reported by the next step.
-
-What dm_control's generic step adds and this one leaves out: the second ``mj_step1`` inside
-``mj_step`` (the task's ``before_step`` has already run it), ``Physics.step``'s context manager and
-its wrapped-array accesses, ``rewards.tolerance`` on numpy scalars and a reduction per action check.
-
-A task whose class overrides one of the hooks the lean step inlines (``before_step``,
-``after_step``, ``get_observation``, ``get_reward``, ``get_termination`` is honoured), a physics
-class that overrides ``step``, a flat observation or ``legacy_step=True`` fall back to
-``control.Environment.step`` unchanged. ``isinstance(env, control.Environment)`` holds, which is
-what ``shimmy.DmControlCompatibilityV0`` checks.
+Warnings are compared once a step with those at the end of the last step (or the reset). A task
+class that overrides a hook the lean step inlines (``before_step``, ``after_step``,
+``get_observation``, ``get_reward``), a physics class that overrides ``step``, a flat observation
+or ``legacy_step=True`` get ``control.Environment.step`` unchanged. ``isinstance(env,
+control.Environment)`` holds, which is what ``shimmy.DmControlCompatibilityV0`` checks.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from typing import Any
 
 import dm_env
@@ -40,12 +29,20 @@ import numpy as np
 from dm_control import mujoco as dm_mujoco
 from dm_control.rl import control
 
+from lfd.demos import DemoSet, load_demos
+from lfd.field import Field
+from robots import RobotModel, load_robot
+from sim.collision import Clearance
+from sim.controller import Gains
+from sim.errors import SimError
+from sim.perturbations import Perturbation
+from sim.setup import SETTLE_S, RunSetup
 from sim.task import ArmPhysics, FieldTrackingTask
 
 # the Task hooks the lean step inlines: a subclass that overrides one gets dm_control's generic step
 _INLINED = ("before_step", "after_step", "get_observation", "get_reward")
 _MID, _LAST = dm_env.StepType.MID, dm_env.StepType.LAST
-_step1, _step2, _mj_step, _kinematics = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step, mujoco.mj_kinematics
+_kinematics = mujoco.mj_kinematics
 # TimeStep(...) through its NamedTuple __new__ costs more than the tuple's own constructor
 _new_tuple = tuple.__new__
 _log = logging.getLogger(__name__)
@@ -93,10 +90,8 @@ class FieldEnvironment(control.Environment):
         self._data_wrapper: Any = None
         self._warned = b""
         self._warnings_now: Any = None
-        self._qadr: Any = None
-        self._q_arm: Any = None
         self._check: Any = None
-        self._apply: Any = None
+        self._step: Any = None
         self._outputs: Any = None
 
     @property
@@ -105,26 +100,17 @@ class FieldEnvironment(control.Environment):
         return self._lean
 
     def _bind(self) -> None:
-        """Keep the raw model and data, views of the arrays the step reads, and the step's flags."""
+        """Keep the raw model and data, the warning counters and the task's control step, bound."""
         physics, task = self._physics, self._task
         self._data_wrapper = physics.data
         self._model, self._data = physics.model.ptr, physics.data.ptr
-        d = self._data
-        self._warnings = d.warning.number   # a view of MuJoCo's warning counters, shape (mjNWARNING,)
+        self._warnings = self._data.warning.number   # a view of MuJoCo's warning counters, (mjNWARNING,)
         self._warned = self._warnings.tobytes()
         self._warnings_now = self._warnings.tobytes
-        self._qpos, self._qadr = d.qpos, task._qadr
-        task.bind(d)
-        # the arm's q as a view of qpos when contiguous (as sim.loop; read before mj_step2 changes it)
-        self._q_arm = task._qpos_arm
-        ctl = task.controller
-        ctl.bind(d)
-        self._split = ctl.split
-        # as sim.loop: after mj_step1 the tool pose is MuJoCo's site, else Pinocchio's FK
-        self._measure = ctl.measure_site if self._split else ctl.measure
-        self._to_task = ctl.to_task if task.placement.pose else None   # a pose twist needs the chart point
+        task.bind(self._data)
+        task.step.bind(self._model, self._data)
         # the task's methods the step calls, bound once (a subclass's overrides included)
-        self._check, self._apply, self._outputs = task.check_action, task.apply, task.outputs
+        self._check, self._step, self._outputs = task.check_action, task.step, task.outputs
 
     def reset(self) -> dm_env.TimeStep:
         """Start a new episode (``control.Environment.reset``) and bind the raw MuJoCo arrays."""
@@ -161,26 +147,14 @@ class FieldEnvironment(control.Environment):
         if self._physics.data is not self._data_wrapper:   # the physics' data was replaced since the reset
             self._bind()
         v = self._check(action)
-        m, d = self._model, self._data
-        split = self._split
-        if split:   # as sim.loop: M(q) and the bias forces at this state
-            _step1(m, d)
-        q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
-        p = self._measure(q)
-        if self._to_task is not None:
-            self._to_task(p)
-        self._apply(d, q, None, v, m)
-        n_sub = self._n_sub_steps
-        if split:
-            _step2(m, d)
-            if n_sub > 1:
-                _mj_step(m, d, n_sub - 1)
-        else:
-            _mj_step(m, d, n_sub)
+        step = self._step
+        step.begin()
+        step.command(v)
+        step.end()
         warned = self._warnings_now()
         if warned != self._warned:   # counters only grow between resets: a new warning since the last check
             self._invalid_state(warned)
-        _kinematics(m, d)   # the observed tool pose of the new joints (``after_step``)
+        _kinematics(self._model, self._data)   # the observed tool pose of the new joints (``after_step``)
         reward, observation = self._outputs()
         self._step_count += 1
         if self._step_count >= self._step_limit:
@@ -208,3 +182,84 @@ class FieldEnvironment(control.Environment):
         if getattr(self._physics, "_warnings_cause_exception", True):
             raise control.PhysicsError(message)
         _log.warning(message)
+
+
+def _control_dt(control_hz: float, timestep: float) -> float:
+    """The control period, s: an integer number of physics steps (else ``SimError``)."""
+    if not control_hz > 0:
+        raise SimError(f"control rate must be positive, got {control_hz}")
+    n_sub = (1.0 / control_hz) / timestep
+    if n_sub < 1 - 1e-9 or abs(n_sub - round(n_sub)) > 1e-6:
+        raise SimError(f"control rate {control_hz:g} Hz must divide the physics rate {1 / timestep:g} Hz")
+    return round(n_sub) * timestep
+
+
+def _robot(robot: str | RobotModel, actuation: str | None) -> RobotModel:
+    """A robot name loaded with ``actuation`` (default ``torque``), or a loaded robot, whose own
+    actuation ``actuation`` (if given) must be."""
+    if isinstance(robot, str):
+        return load_robot(robot, actuation=actuation or "torque")
+    if actuation is not None and actuation != robot.actuation:
+        raise SimError(f"robot '{robot.name}' was loaded with actuation='{robot.actuation}', not '{actuation}'")
+    return robot
+
+
+def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | None = None, *,
+                     learner_field: Field | None = None, seed: int | None = None, start_radius: float = 0.0,
+                     demo_index: int = 0, control_hz: float = 500.0, duration_s: float | None = None,
+                     settle_s: float = SETTLE_S, ik: str = "dls", actuation: str | None = None,
+                     perturbations: Sequence[Perturbation] = (), gains: Gains = Gains(),
+                     feedforward: bool = True, physics: ArmPhysics | None = None, dynamics: str = "mujoco",
+                     clearance: Clearance | None = None) -> FieldEnvironment:
+    """A dm_control Environment of the arm following task velocities (``sim.task``), whose ``step``
+    is the lean one of the module docstring.
+
+    One call from names::
+
+        env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
+
+    Parameters
+    ----------
+    robot : str, RobotModel or RunSetup
+        A built-in name (``planar``, ``panda``), loaded with ``actuation`` (default ``torque``), or
+        a loaded robot (its own actuation; another ``actuation``: ``SimError``); both resolve the
+        setup from ``demos`` (``RunSetup.resolve``: auto placement, demo ``demo_index``'s start,
+        the demos' goal). Or a resolved ``RunSetup``, used as it is.
+    demos : str or DemoSet, optional
+        A demo SPEC (``spiral``, ``lasa:Angle``, a file; ``lfd.load_demos``) or a DemoSet; needed
+        unless ``robot`` is a RunSetup.
+    learner_field : Field, optional
+        Adds the ``field_velocity`` observation (the action ``sim.loop.execute`` would take); the
+        goal is then where the field's goal is at the run's end (a moving goal, ``lfd.goal``).
+    seed, start_radius : random initial states: with ``start_radius`` > 0 (task units) each
+        episode starts uniformly in that ball around the start, drawn from ``seed``.
+    duration_s : float, optional
+        Episode length, s (default: the setup's, the demo's duration plus ``settle_s``).
+    control_hz : the control rate, an integer divisor of the physics rate.
+    physics : an ``ArmPhysics.from_robot(setup.robot)`` to reuse one compiled model.
+    dynamics : computed torque from MuJoCo's M(q) and bias forces (``mujoco``) or Pinocchio's RNEA.
+    clearance : whole-arm collision dampers in the IK (``sim.collision``; default None: none).
+    Others as ``sim.task.FieldTrackingTask`` and ``sim.controller.FieldController``.
+    """
+    if isinstance(robot, RunSetup):
+        setup = robot
+        if actuation is not None and actuation != setup.robot.actuation:
+            raise SimError(f"robot '{setup.robot.name}' was loaded with actuation='{setup.robot.actuation}', "
+                           f"not '{actuation}'")
+    else:
+        if demos is None:
+            raise SimError("make_environment needs demos (a spec or a DemoSet), or a resolved RunSetup")
+        demo_set = load_demos(demos) if isinstance(demos, str) else demos
+        setup = RunSetup.resolve(_robot(robot, actuation), demo_set, demo_index=demo_index, settle_s=settle_s)
+    if duration_s is not None:
+        setup = setup.moved(duration_s=duration_s)
+    if learner_field is not None and learner_field.dim != setup.dim:
+        raise SimError(f"the field is {learner_field.dim}-D but the placement is {setup.dim}-D")
+    goal = None if learner_field is None else learner_field.goal_at(setup.duration_s)
+    physics = ArmPhysics.from_robot(setup.robot) if physics is None else physics
+    control_dt = _control_dt(control_hz, physics.model.opt.timestep)
+    task = FieldTrackingTask(setup, control_dt, goal=goal, ik=ik, perturbations=perturbations, gains=gains,
+                             feedforward=feedforward, mj_model=physics.model.ptr, start_radius=start_radius,
+                             seed=seed, field=learner_field, dynamics=dynamics, clearance=clearance)
+    return FieldEnvironment(physics, task, time_limit=setup.duration_s, control_timestep=control_dt,
+                            legacy_step=False)

@@ -15,19 +15,18 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from lfd.errors import ConfigError
+from lfd.field import Field
 from lfd.io import atomic_write, same_file, write_json
+from sim import timeseries
 from sim.camera import CameraSpec
+from sim.experiment import Experiment, RunResult
+from sim.job import ArmJob
 from sim.outputs import OutputSet, fresh_dir
-
-if TYPE_CHECKING:
-    from lfd.field import Field
-    from sim.experiment import Experiment, RunResult
-    from sim.pipeline import ArmJob
 
 __all__ = ["JobFiles", "run_entry"]
 
@@ -132,8 +131,7 @@ class JobFiles:
     def _write(self, exp: Experiment, results: list[RunResult], side: list[RunResult], grid: list[RunResult],
                fields: dict[str, Field], models: dict[str, dict[str, Any]], t_sim: float, progress: bool,
                settings: dict[str, Any]) -> dict[str, Any]:
-        from sim import timeseries
-        from sim.plots import run_figure
+        from sim.plots import run_figure  # matplotlib: only when a job writes its figures
 
         job, plan, staged = self.job, self.plan, self.outputs.staged
         camera = job.camera or CameraSpec()

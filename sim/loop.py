@@ -1,29 +1,11 @@
-"""The closed loop, run fast on the Environment's own Physics and Task.
+"""The closed loop, run fast on the Environment's own Physics and Task: the task's control step
+(``sim.step.ControlStep``: measure, field, IK with its safety rows, command, physics) K times,
+with the field's runner (``lfd.runner``: it carries a phase or the time itself), recording each step.
 
-Every control step k (t_k = k dt):
-
-1. read q, qdot of the arm joints from MuJoCo;
-2. p = FK(q): MuJoCo's tool site after ``mj_step1`` (see 6; equal to Pinocchio's FK up to
-   round-off) and, for the compiled IK, MuJoCo's Jacobian of the site (``controller.measure_site``),
-   else Pinocchio's pose and Jacobian (``controller.measure``);
-3. v = f(x - dg) with x = A^T (p - o) / s the MEASURED tool position in task space (dg: a goal
-   shift, ``sim.perturbations``), or v = f(x - dg, t_k) for a time-varying field (``lfd.goal``,
-   moving obstacles of ``lfd.obstacles``); a field with a phase (``lfd.learners.tracking``) runs
-   through ``PhaseLoop``: Eq. (T3) at its phase s, then one control step of Eq. (T4), so the phase
-   waits while the measured tool is held back;
-4. qdot_ref = IK(q, twist(v)) and the actuator command (``FieldTrackingTask.apply``, through the
-   controller's compiled fast path ``FieldController.fast_command``);
-5. the step's perturbations (push, joint-velocity noise);
-6. ``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` (no dm_control wrapper); with
-   computed torque from MuJoCo's dynamics (the default) or whole-arm clearance
-   (``FieldController.split``) it is split into ``mj_step1`` before step 1 (so the mass matrix,
-   ``qfrc_bias`` and the geoms' poses describe this state) and ``mj_step2`` after step 5; during
-   a ``Hold`` window the arm joints are then clamped at rest where the hold began; a NaN/unstable
-   state or a bad control (mjWARN_BADQPOS/QVEL/QACC/CTRL) raises ``SimulationError``.
-
-Each control step records q, qdot (as read in step 1), the tool position p, the command v and the
-force that ``xfrc_applied`` holds on the push body after step 5 (``RunTrace``); the full ``qpos``
-only at the video frame times.
+Each control step records q, qdot (as read before the command), the tool position p (and a pose
+task's rotation), the command v and the force that ``xfrc_applied`` holds on the push body after
+the step's perturbations (``RunTrace``); the full ``qpos`` only at the video frame times. A
+NaN/unstable state or a bad control (mjWARN_BADQPOS/QVEL/QACC/CTRL) raises ``SimulationError``.
 """
 
 from __future__ import annotations
@@ -31,7 +13,6 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,7 +21,9 @@ import numpy as np
 from dm_control.rl import control
 from tqdm import tqdm
 
+from lfd.runner import Runner
 from sim.errors import SimulationError
+from sim.step import contiguous
 from sim.task import FieldTrackingTask
 
 FPS = 30.0  # default rate (frames per simulated second) at which a run keeps the full qpos for video
@@ -94,7 +77,7 @@ class RunTrace:
     joint_limit_violations : int
         Control steps with an arm joint outside [q_min, q_max] in MuJoCo.
     phase : ndarray, shape (K+1,), or None
-        The phase s of a ``PhaseLoop`` at each step.
+        The phase s of the field's runner at each step (a field with a phase, ``lfd.runner``).
     hold_window_s : (t0, t1) or None
     cpu_s : float or None
         The loop's CPU time (this thread; ``time.thread_time``), which machine load does not inflate.
@@ -159,66 +142,20 @@ class RunTrace:
         return float(np.median(self.step_time_s) * 1e6)
 
 
-@dataclass(frozen=True)
-class Hold:
-    """Hold the arm still for ``duration_s`` from ``start_s``: after every physics step in that
-    window the arm joints are reset to where they were at ``start_s``, at rest."""
-
-    start_s: float = 1.0
-    duration_s: float = 1.0
-    kind = "hold"
-
-    def describe(self) -> dict[str, Any]:
-        """The hold for the metrics JSON, like ``sim.perturbations.Perturbation.describe``."""
-        return {"kind": self.kind, "start_s": self.start_s, "duration_s": self.duration_s}
-
-
-class PhaseLoop:
-    """The control loop's side of a field with a phase (``lfd.learners.tracking``).
-
-    Each call takes the measured task-space position x, shape (d,), returns dx/dt of Eq. (T3) at
-    the current phase s, and advances s by explicit Euler of Eq. (T4) over one control period dt:
-    s <- min(1, s + dt s_dot(x, s)). ``trace`` records s before each call.
-    field : a TrackingField; dt : control period, s; start : the run's start (task units) for a
-    start-conditioned reference (Eq. (T2)).
-    """
-
-    def __init__(self, field: Any, dt: float, start: np.ndarray | None = None) -> None:
-        self.fn = field.phase_point_fn(start)
-        self.s = float(field.initial_phase())
-        self.dt = float(dt)
-        self.trace: list[float] = []
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        v, sdot = self.fn(x, self.s)
-        self.trace.append(self.s)
-        self.s = min(1.0, self.s + self.dt * sdot)
-        return v
-
-    def peek(self, x: np.ndarray) -> np.ndarray:
-        """dx/dt, shape (d,), at x, shape (d,), and the current phase, without advancing or recording it."""
-        return self.fn(x, self.s)[0]
-
-
-def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
-            fps: float = FPS, progress: bool = False, desc: str = "run",
-            hold: Hold | None = None, timed: bool = False) -> RunTrace:
-    """Reset ``env`` and run one episode (module docstring) with a velocity field.
+def execute(env: control.Environment, runner: Runner, fps: float = FPS, progress: bool = False,
+            desc: str = "run") -> RunTrace:
+    """Reset ``env`` and run one episode (module docstring) with a field's runner.
 
     Parameters
     ----------
     env : dm_control Environment
         From ``sim.make_environment`` (its task a ``FieldTrackingTask``).
-    field_fn : callable, x (d,) -> v (d,)
-        The field in task units, evaluated at the measured tool position every control step (a
-        ``PhaseLoop`` carries its phase; the RunTrace then records it).
+    runner : lfd.runner.Runner
+        ``field.runner(start, dt)``: called at the measured task point (goal-shifted) and the time
+        t_k = k dt every control step; a phase it carries is recorded (``RunTrace.phase``).
     fps : float
         Rate at which the full qpos is kept for video, frames per simulated second.
     progress, desc : a progress bar and its label.
-    hold : Hold, optional
-        Clamp the arm in that window.
-    timed : bool
-        ``field_fn`` is time-varying, (x, t [s]) -> v: the loop passes t_k = k dt.
 
     Returns
     -------
@@ -231,34 +168,28 @@ def execute(env: control.Environment, field_fn: Callable[..., np.ndarray],
     rec = _Record.allocate(task.n_steps, task.control_dt, task.robot.n, m.nq, task.placement.dim, fps,
                            task.placement.pose, task.controller.guard is not None)
     hits0 = getattr(task.controller.ik, "limit_hits", 0)
-    dt = task.control_dt
-    h0, h1 = (-1, -1) if hold is None else (int(round(hold.start_s / dt)),
-                                             int(round((hold.start_s + hold.duration_s) / dt)))
     messages: list[str] = []
     prev_handler = mujoco.get_mju_user_warning()
     mujoco.set_mju_user_warning(messages.append)
     bar = tqdm(total=task.n_steps, desc=desc, disable=not progress, unit="step", leave=False, mininterval=0.5)
     try:
-        wall, cpu, j = _loop(task, m, d, field_fn, rec, h0, h1, bar, timed)
+        wall, cpu, j = _loop(task, m, d, runner, rec, bar)
     finally:
         mujoco.set_mju_user_warning(prev_handler)
         bar.close()
     if messages:  # MuJoCo's other warnings (e.g. too many contacts): said once, not swallowed
         warnings.warn(f"MuJoCo warned {len(messages)} time(s) during the run: {messages[0].strip()}",
                       RuntimeWarning, stacklevel=2)
-    _record_final(task, d, field_fn, rec, j, timed)
-    return _to_trace(rec, task, field_fn, wall, cpu, int(getattr(task.controller.ik, "limit_hits", 0) - hits0),
-                       None if hold is None else (h0 * dt, h1 * dt))
+    _record_final(task, d, runner, rec, j)
+    return _to_trace(rec, task, runner, wall, cpu, int(getattr(task.controller.ik, "limit_hits", 0) - hits0))
 
 
-def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn: Callable[..., np.ndarray],
-          rec: _Record, h0: int, h1: int, bar: Any, timed: bool = False) -> tuple[float, float, int]:
-    """The K control steps of ``execute`` (module docstring), written into ``rec``; the arm is held
-    in steps [h0, h1); a ``timed`` field gets t_k. Returns (wall s, CPU s, video frames written)."""
-    n_sub = int(round(task.control_dt / m.opt.timestep))
-    ctl, qadr, dadr = task.controller, task.robot.mj_qpos_adr, task.robot.mj_dof_adr
-    K, dt, shift = task.n_steps, task.control_dt, task.schedule.goal_offset_task
-    shifted = bool(np.any(shift != 0))
+def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, runner: Runner, rec: _Record,
+          bar: Any) -> tuple[float, float, int]:
+    """The K control steps of ``execute``, written into ``rec``. Returns (wall s, CPU s, video frames written)."""
+    step, ctl = task.step, task.controller
+    begin, field_point, command, end = step.begin, step.field_point, step.command, step.end
+    K, dt, dadr = task.n_steps, task.control_dt, task.robot.mj_dof_adr
     fsteps, Q, Qd, P, V, F, FQ, steps = rec.frame_steps, rec.q, rec.qdot, rec.ee, rec.command, rec.force, \
         rec.frame_qpos, rec.step_s
     ROT = rec.rot   # a pose task's tool rotations (None otherwise)
@@ -268,59 +199,33 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
     b0 = min(bad)
     bad_view = warn[b0:b0 + len(bad)] if sorted(bad) == list(range(b0, b0 + len(bad))) else None
     no_warning = bytes(0 if bad_view is None else bad_view.nbytes)
-    j, next_frame, q_hold = 0, int(fsteps[0]), None
-    clock, split = time.perf_counter, ctl.split
-    step1, step2, step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
-    ctl.bind(d)
-    # after mj_step1 the tool pose is MuJoCo's (Pinocchio computes the IK's Jacobian); else Pinocchio FK
-    measure, to_task, apply = (ctl.measure_site if split else ctl.measure), ctl.to_task, task.apply
+    j, next_frame = 0, int(fsteps[0])
+    clock = time.perf_counter
     qpos, qvel = d.qpos, d.qvel   # one view each for the whole loop (each attribute access builds a new one)
-    lo = int(dadr[0])               # the arm's qvel as one view when its dofs are contiguous (cheaper to copy)
-    qvel_arm = qvel[lo:lo + len(dadr)] if np.array_equal(dadr, np.arange(lo, lo + len(dadr))) else None
-    # the arm's qpos as one view when contiguous: q of a step is read before its mj_step2 changes qpos
-    lo = int(qadr[0])
-    qpos_arm = qpos[lo:lo + len(qadr)] if np.array_equal(qadr, np.arange(lo, lo + len(qadr))) else None
+    qvel_arm = contiguous(qvel, dadr)   # the arm's qvel as one view when its dofs are contiguous
     push_body = task.schedule.push_body
     force = d.xfrc_applied[max(push_body, 0), :3]   # the push body's applied force (a view)
     cpu0 = time.thread_time()
     start = clock()
     for k in range(K):
         t0 = clock()
-        if split:
-            step1(m, d)
-        q = qpos[qadr] if qpos_arm is None else qpos_arm
-        p = measure(q)
-        Q[k] = q
+        P[k] = begin()
+        Q[k] = step.q
         Qd[k] = qvel[dadr] if qvel_arm is None else qvel_arm
-        P[k] = p
         if k == next_frame:
             FQ[j] = qpos
             j += 1
             next_frame = int(fsteps[j]) if j < len(fsteps) else -1
-        x = to_task(p)
         if ROT is not None:
             ROT[k] = ctl.measured_rotation()
-        if shifted:
-            x = x - shift
-        v = V[k] = field_fn(x, k * dt) if timed else field_fn(x)
-        apply(d, q, None, v, m)
+        v = V[k] = runner(field_point(), k * dt)
+        command(v)
         if guard is not None and CLR is not None and GA is not None:
             CLR[k] = guard.min_distance
             GA[k] = ctl.guard_active
         if push_body >= 0:
             F[k] = force
-        if split:
-            step2(m, d)
-            if n_sub > 1:
-                step(m, d, n_sub - 1)
-        else:
-            step(m, d, n_sub)
-        if h0 <= k < h1:
-            if q_hold is None:
-                q_hold = Q[h0].copy()
-            qpos[qadr] = q_hold
-            qvel[dadr] = 0.0
-            mujoco.mj_forward(m, d)
+        end()
         if (bad_view.tobytes() != no_warning if bad_view is not None else
                 warn[bad[0]] or warn[bad[1]] or warn[bad[2]] or warn[bad[3]]):
             raise SimulationError(_divergence_message(d, k, dt, bad))
@@ -330,10 +235,9 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, field_fn
     return clock() - start, time.thread_time() - cpu0, j
 
 
-def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[..., np.ndarray],
-                  rec: _Record, j: int, timed: bool = False) -> None:
-    """Row K of the record: the state after the last step, the field's command there (a
-    ``PhaseLoop`` is not advanced), and the frames not reached."""
+def _record_final(task: FieldTrackingTask, d: mujoco.MjData, runner: Runner, rec: _Record, j: int) -> None:
+    """Row K of the record: the state after the last step, the field's command there (the runner
+    not advanced), and the frames not reached."""
     ctl, K = task.controller, task.n_steps
     q = d.qpos[task.robot.mj_qpos_adr]
     rec.q[K] = q
@@ -345,8 +249,7 @@ def _record_final(task: FieldTrackingTask, d: mujoco.MjData, field_fn: Callable[
     if not np.isfinite(x).all():   # diverged: _to_trace raises SimulationError
         rec.command[K] = np.nan
     else:
-        rec.command[K] = (field_fn.peek(x) if isinstance(field_fn, PhaseLoop) else
-                          field_fn(x, K * task.control_dt) if timed else field_fn(x))
+        rec.command[K] = runner.peek(x, K * task.control_dt)
     if j < len(rec.frame_steps):
         rec.frame_qpos[j:] = d.qpos
 
@@ -381,17 +284,15 @@ class _Record:
                    np.full(K + 1, np.inf) if guard else None, np.zeros(K + 1, dtype=bool) if guard else None)
 
 
-def _to_trace(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.ndarray], wall: float,
-                cpu: float, ik_limit_hits: int, hold_window: tuple[float, float] | None) -> RunTrace:
+def _to_trace(rec: _Record, task: FieldTrackingTask, runner: Runner, wall: float, cpu: float,
+              ik_limit_hits: int) -> RunTrace:
     """The RunTrace of a finished loop (``SimulationError`` if its state went non-finite)."""
     robot, K, dt = task.robot, task.n_steps, task.control_dt
     if not (np.isfinite(rec.q).all() and np.isfinite(rec.qdot).all() and np.isfinite(rec.ee).all()):
         raise SimulationError("simulation diverged: NaN in the joint state; no output written")
     violations = int(np.count_nonzero(np.any((rec.q < robot.q_min) | (rec.q > robot.q_max), axis=1)))
     s = task.schedule
-    phase = None
-    if isinstance(field_fn, PhaseLoop):
-        phase = np.asarray(field_fn.trace + [field_fn.s], dtype=np.float64)
+    phase = runner.phases()
     return RunTrace(
         t=np.arange(K + 1) * dt, ee=rec.ee, q=rec.q, qdot=rec.qdot, command=rec.command, applied_force=rec.force,
         frame_t=rec.frame_t, frame_qpos=rec.frame_qpos,
@@ -399,7 +300,7 @@ def _to_trace(rec: _Record, task: FieldTrackingTask, field_fn: Callable[..., np.
         goal_world=task.goal_world.copy(), push_window_s=s.push_window_s,
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,
         ik_limit_hits=ik_limit_hits, joint_limit_violations=violations,
-        phase=phase, hold_window_s=hold_window, cpu_s=cpu, mocap_pos=s.mocap_pos, ee_rot=rec.rot,
+        phase=phase, hold_window_s=s.hold_window_s, cpu_s=cpu, mocap_pos=s.mocap_pos, ee_rot=rec.rot,
         arm_clearance_m=rec.clearance, guard_active=rec.guarded)
 
 

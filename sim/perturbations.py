@@ -9,6 +9,7 @@
   about a world axis u: in the chart at R_g (``lfd.pose``) the turned goal exp(theta u) R_g is the chart
   point l theta R_g^T A^T u, so the same translation of the field moves its attractor there exactly.
 * ``JointVelocityNoise``: every control step, qdot_j += N(0, std^2) on each arm joint.
+* ``Hold``: the arm is held still for ``duration_s`` from ``start_s`` (its joints clamped at rest).
 
 A random direction (when none is given) is drawn from the perturbation's own seed: in the task
 plane for a 2-D task, in space for a 3-D one. :func:`compile_schedule` turns a list of
@@ -135,6 +136,16 @@ class JointVelocityNoise(Perturbation):
     kind = "noise"
 
 
+@dataclass(frozen=True)
+class Hold(Perturbation):
+    """Hold the arm still for ``duration_s`` from ``start_s``: after every physics step in that
+    window the arm joints are reset to where they were at ``start_s``, at rest."""
+
+    start_s: float = 1.0
+    duration_s: float = 1.0
+    kind = "hold"
+
+
 @dataclass
 class Schedule:
     """What the control loop applies, precomputed.
@@ -149,6 +160,8 @@ class Schedule:
     qvel_noise : array, shape (K, n) or None -- noise added to arm joint velocities per step
     mocap_pos : array, shape (K+1, nmocap, 3) or None -- mocap body positions (moving obstacles,
         ``sim.obstacles.mocap_path``) written before each step
+    hold_steps : tuple[int, int]          -- control steps [h0, h1) of a hold ((-1, -1): none)
+    hold_window_s : tuple[float, float] or None -- the same window in seconds of sim time
     """
 
     start_offset_task: np.ndarray
@@ -160,6 +173,8 @@ class Schedule:
     push_window_s: tuple[float, float] | None = None
     qvel_noise: np.ndarray | None = None
     mocap_pos: np.ndarray | None = None
+    hold_steps: tuple[int, int] = (-1, -1)
+    hold_window_s: tuple[float, float] | None = None
 
 
 def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement, body_ids: dict[str, int],
@@ -171,6 +186,8 @@ def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement
     pushes = [p for p in perturbations if isinstance(p, Push)]
     if len(pushes) > 1:
         raise SimError("only one push per run is supported")
+    if sum(isinstance(p, Hold) for p in perturbations) > 1:
+        raise SimError("only one hold per run is supported")
     goal_turn = np.eye(3)   # the goal's turns, composed, world
     for p in perturbations:
         if isinstance(p, (StartOffset, GoalShift)) and p.angle_deg != 0.0 and placement.chart is None:
@@ -201,6 +218,12 @@ def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement
             rng = np.random.default_rng(p.seed)
             noise = rng.normal(0.0, p.std_rad_s, (n_steps, n_joints))
             sched.qvel_noise = noise if sched.qvel_noise is None else sched.qvel_noise + noise
+        elif isinstance(p, Hold):
+            if p.duration_s <= 0 or p.start_s < 0:
+                raise SimError("hold: start_s must be >= 0 and duration_s > 0")
+            h0, h1 = int(round(p.start_s / control_dt)), int(round((p.start_s + p.duration_s) / control_dt))
+            sched.hold_steps = (h0, h1)
+            sched.hold_window_s = (h0 * control_dt, h1 * control_dt)
         elif type(p) is not Perturbation:
             raise SimError(f"unknown perturbation {p!r}")
     if placement.chart is not None and not np.array_equal(goal_turn, np.eye(3)):

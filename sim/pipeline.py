@@ -20,156 +20,40 @@ staged, then moved into place together, ``metrics.json`` last (see ``sim.job_fil
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import lfd
+from lfd.cache import cached_field
 from lfd.errors import ConfigError
-from lfd.field import Field, is_phased
+from lfd.field import Field, space_mismatch
 from lfd.obstacles import MIN_GOAL_GAMMA, Obstacle, parse_obstacle
-from robots import RobotError, RobotModel, load_robot
-from sim.camera import CameraSpec
+from robots import RobotError, load_robot
 from sim.collision import hand_margin_m
 from sim.controller import Gains
 from sim.errors import PlacementError
-from sim.experiment import SCENARIOS, Experiment, RunResult, scenario
+from sim.experiment import Experiment, RunResult
 from sim.gl import require_backend
+from sim.job import (
+    DEFAULT_LEARNERS,
+    OBSTACLE_LEAD_S,
+    OBSTACLE_TIME_FACTOR,
+    SIDE_BY_SIDE_LEARNERS,
+    ArmJob,
+    PushSpec,
+)
+from sim.job_files import JobFiles
 from sim.obstacles import obstacle_contacts
-from sim.perturbations import Perturbation, Push
-from sim.placement import Placement
+from sim.perturbations import Perturbation
+from sim.setup import RunSetup
 
-__all__ = ["ArmJob", "JobReport", "PushSpec", "run_job"]
-
-#: the learners a job runs when it names none (and the panels of a side-by-side video)
-DEFAULT_LEARNERS = ("node", "contraction")
-SIDE_BY_SIDE_LEARNERS = ("node", "contraction", "tracking")
-#: the controller's phase lead with obstacles (``sim.controller.Gains.lead_s``), s
-OBSTACLE_LEAD_S = 0.01
-#: with obstacles a run lasts this many times the demo's duration (then the settling time): the
-#: horizon at which the field-level benchmark asks every start to have arrived (``lfd.bench.obstacles``
-#: HORIZON; a literal here, since importing ``lfd.bench`` would load torch with the job)
-OBSTACLE_TIME_FACTOR = 3.0
-
-
-@dataclass(frozen=True)
-class PushSpec:
-    """The ``push`` scenario's force: ``force_n`` N for ``duration_s`` s from ``start_s`` s along the
-    world ``direction`` (normalised; None: drawn from the run's seed)."""
-
-    force_n: float = 20.0
-    start_s: float = 1.0
-    duration_s: float = 0.2
-    direction: tuple[float, float, float] | None = None
-
-    def check(self) -> None:
-        """Raise ``ConfigError`` for a force outside [0, 1000] N, a negative start, a duration
-        outside (0, 60] s or a zero direction."""
-        if not (math.isfinite(self.force_n) and 0 <= self.force_n <= 1000):
-            raise ConfigError(f"--push-force must be between 0 and 1000 N, got {self.force_n:g}")
-        if not (math.isfinite(self.start_s) and self.start_s >= 0):
-            raise ConfigError(f"--push-start must be a time >= 0 s, got {self.start_s:g}")
-        if not (math.isfinite(self.duration_s) and 0 < self.duration_s <= 60):
-            raise ConfigError(f"--push-duration must be in (0, 60] s, got {self.duration_s:g}")
-        if self.direction is not None and not any(self.direction):
-            raise ConfigError("--push-direction must not be zero")
-
-    def perturbation(self, seed: int) -> Push:
-        """The ``sim.Push`` of this spec, its direction drawn from ``seed`` unless given."""
-        return Push(force_n=self.force_n, duration_s=self.duration_s, start_s=self.start_s,
-                    direction=self.direction, seed=seed)
-
-
-@dataclass(frozen=True)
-class ArmJob:
-    """Everything one arm job does; the fields mirror ``scripts/demo_arm.py``'s flags.
-
-    ``learners`` None runs ``DEFAULT_LEARNERS``, or the learner of ``model``; ``out`` None is a fresh
-    ``out/demo_arm_<time>``; ``placement`` is ``auto`` (``origin``, ``scale`` or ``size_m`` adjust
-    it) or ``recorded`` (3-D demos where they were recorded, metres in the robot's base frame).
-    ``obstacles`` are ``lfd.obstacles.parse_obstacle`` texts, in task units; with
-    ``arm_clearance`` (the default) the fields keep the tool point the hand's size
-    (``sim.collision.hand_margin_m``) more than each obstacle's margin away, and collision dampers in
-    the IK keep the rest of the arm clear of the obstacles, the table and itself (``sim.collision``).
-    """
-
-    robot: str = "panda"
-    ee_frame: str | None = None
-    learners: tuple[str, ...] | None = None
-    model: str | None = None
-    demos: str = "spiral"
-    scenarios: tuple[str, ...] = ("none", "offset", "push")
-    seed: int = 0
-    out: str | None = None
-    overwrite: bool = False
-    json: str | None = None
-    video: str | None = None
-    videos: bool = True
-    plots: bool = True
-    camera: CameraSpec | None = None
-    size: tuple[int, int] | None = None
-    fps: float = 30.0
-    side_by_side: str | None = None
-    grid: int | None = None
-    table: bool = False
-    ik: str = "dls"
-    actuation: str = "torque"
-    plane: str = "auto"
-    size_m: float | None = None
-    placement: str = "auto"
-    origin: tuple[float, float, float] | None = None
-    shift: tuple[float, float, float] | None = None
-    scale: float | None = None
-    push: PushSpec = PushSpec()
-    obstacles: tuple[str, ...] = ()
-    arm_clearance: bool = True
-    goal_shift: str | None = None
-    goal_path: str | None = None
-    control_hz: float = 500.0
-    iters: int | None = None
-    quiet: bool = False
-    command: tuple[str, ...] = field(default_factory=lambda: tuple(sys.argv))
-
-    def check(self) -> None:
-        """Raise ``ConfigError`` for options that contradict each other or are out of range."""
-        from lfd.learners import LEARNERS, MAX_SEED
-
-        if isinstance(self.seed, bool) or not 0 <= self.seed <= MAX_SEED:
-            raise ConfigError(f"--seed must be between 0 and 2^63 - 1, got {self.seed}")
-        if self.model and self.learners is not None and len(self.learners) != 1:
-            raise ConfigError("--model holds one learner; leave out --learner or name that learner")
-        for name in self.learners or ():
-            if name not in LEARNERS:
-                raise ConfigError(f"unknown learner '{name}'; known: {', '.join(LEARNERS)}")
-        for name in (*self.scenarios, *([self.side_by_side] if self.side_by_side else [])):
-            if name not in SCENARIOS:
-                raise ConfigError(f"unknown scenario '{name}'; use one of {', '.join(SCENARIOS)}")
-        if not self.scenarios:
-            raise ConfigError("a job needs at least one scenario")
-        if not (math.isfinite(self.control_hz) and self.control_hz > 0) or (
-                self.size_m is not None and not (math.isfinite(self.size_m) and self.size_m > 0)):
-            raise ConfigError("--control-hz and --size-m must be positive")
-        if self.scale is not None and not (math.isfinite(self.scale) and self.scale > 0):
-            raise ConfigError(f"--scale must be a positive number, got {self.scale:g}")
-        if self.placement == "recorded" and (self.origin, self.scale, self.size_m) != (None, None, None):
-            raise ConfigError("--placement recorded takes no --origin, --scale or --size-m")
-        if self.shift is not None and (self.origin, self.scale, self.size_m) != (None, None, None):
-            raise ConfigError("--shift moves recorded poses; it takes no --origin, --scale or --size-m")
-        if self.iters is not None and self.iters < 1:
-            raise ConfigError(f"--iters must be a positive integer, got {self.iters}")
-        self.push.check()
-
-    def perturbations(self, name: str, seed: int, pose: bool = False) -> tuple[Perturbation, ...]:
-        """The perturbations of scenario ``name`` with ``seed`` (of a pose task if ``pose``), the push
-        taking ``push``."""
-        return (self.push.perturbation(seed),) if name == "push" else scenario(name, seed, pose)
-
+__all__ = ["ArmJob", "JobReport", "OBSTACLE_LEAD_S", "OBSTACLE_TIME_FACTOR", "PushSpec", "grown", "run_job"]
 
 @dataclass
 class JobReport:
@@ -197,37 +81,6 @@ def iters_option(learner: str, iters: int) -> dict[str, int]:
 def grown(obstacles: list[Obstacle], margin: float) -> list[Obstacle]:
     """The obstacles with ``margin`` (task units) added to each one's own."""
     return [dataclasses.replace(o, margin=o.margin + margin) if margin > 0 else o for o in obstacles]
-
-
-def placement_of(job: ArmJob, robot: RobotModel, demos: lfd.DemoSet) -> Placement | None:
-    """The placement the job asks for, or None for the Experiment's default (``Placement.auto``;
-    for poses ``Placement.recorded``, or ``Placement.auto`` with ``--size-m``)."""
-    chart = None
-    if demos.has_orientation:
-        from lfd.pose import PoseChart
-
-        chart = PoseChart.of(demos)
-        if job.shift is not None:   # the recorded poses, translated
-            return Placement(np.asarray(job.shift, dtype=np.float64), np.eye(3), 1.0, 6, chart)
-        if job.placement == "recorded" or (job.origin is None and job.scale is None):
-            return None
-    else:
-        if job.shift is not None:
-            raise ConfigError("--shift is for demos of poses (run where recorded); use --origin for positions")
-        if job.placement == "recorded":
-            if demos.dim != 3:
-                raise ConfigError(f"--placement recorded needs 3-D demos, {demos.name} are {demos.dim}-D")
-            return Placement(np.zeros(3), np.eye(3), 1.0, 3)
-    if job.origin is None and job.scale is None:
-        return None
-    auto = Placement.auto(robot, demos.x, plane=job.plane, size_m=job.size_m)
-    lo, hi = demos.bounds()
-    center = (lo + hi) / 2
-    scale = auto.scale if job.scale is None else float(job.scale)
-    target = auto.to_world(center) if job.origin is None else np.asarray(job.origin, dtype=np.float64)
-    if chart is not None:
-        return Placement(target - scale * auto.axes @ center, auto.rotation, scale, 6, chart)
-    return Placement(target - scale * auto.axes @ center, auto.rotation, scale, auto.dim)
 
 
 GoalMotion = tuple[str, Any]
@@ -307,9 +160,6 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
     JobReport
         The runs and where their files are (all written when this returns).
     """
-    from lfd.cache import cached_field
-    from sim.job_files import JobFiles
-
     job.check()
     progress = not job.quiet and sys.stderr.isatty()   # bars only on a terminal
     planned = list(job.learners) if job.learners else (["node"] if job.model else list(DEFAULT_LEARNERS))
@@ -340,11 +190,12 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
         except ValueError as e:
             raise ConfigError(str(e)) from None
     # the placement's reach, on the scene with the obstacles (moving ones move), before any training
-    exp = Experiment(robot, demos, placement=placement_of(job, robot, demos), plane=job.plane, size_m=job.size_m,
-                     control_hz=job.control_hz, ik=job.ik, fps=job.fps, obstacles=obstacles,
+    setup = RunSetup.resolve(robot, demos, plane=job.plane, size_m=job.size_m, origin=job.origin, scale=job.scale,
+                             shift=job.shift, recorded=job.placement == "recorded", obstacles=obstacles,
+                             time_factor=OBSTACLE_TIME_FACTOR if obstacles else 1.0)
+    exp = Experiment(setup, control_hz=job.control_hz, ik=job.ik, fps=job.fps,
                      gains=Gains(lead_s=OBSTACLE_LEAD_S) if obstacles else Gains(),
-                     clearance="auto" if job.arm_clearance else None,
-                     time_factor=OBSTACLE_TIME_FACTOR if obstacles else 1.0)
+                     clearance="auto" if job.arm_clearance else None)
     hand = hand_margin_m(robot) if job.arm_clearance else 0.0
     avoided = grown(obstacles, hand / exp.placement.scale)
     for o, g in zip(obstacles, avoided):
@@ -395,13 +246,11 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
             if name not in fields:
                 train(name)
     for name, f in list(fields.items()):
-        if (f.chart is not None) != demos.has_orientation:
-            raise ConfigError(f"the {name} model is trained on {'poses' if f.chart is not None else 'positions'} "
-                              f"but the demos {demos.name} are {'poses' if demos.has_orientation else 'positions'}")
+        mismatch = space_mismatch(f, exp.placement.chart)
+        if mismatch is not None:
+            raise ConfigError(f"the {name} model does not fit the demos {demos.name}: {mismatch}")
         if f.dim != exp.placement.dim:
             raise ConfigError(f"the {name} model is {f.dim}-D but the demos {demos.name} are {demos.dim}-D")
-        if goal_motion is not None and is_phased(f):
-            raise ConfigError(f"--goal-shift/--goal-path does not apply to the {name} learner yet (its phase state)")
         if goal_motion is not None:
             f = fields[name] = moving(f, goal_motion)
         if avoided:

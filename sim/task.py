@@ -17,12 +17,9 @@
 * Restorable state: ``FieldTrackingTask.get_state`` / ``set_state`` (the physics state alone does
   not replay a run exactly).
 
-The fast loop (``sim.loop``) uses these same Physics and Task objects but calls
-``mujoco.mj_step`` on ``physics.model.ptr`` / ``physics.data.ptr`` directly. The environment that
-``make_environment`` returns (``sim.env.FieldEnvironment``, a ``control.Environment``) steps the
-same way: the same physics and control as the loop, plus the observation and the reward from the raw MuJoCo
-arrays (``FieldTrackingTask.outputs``: one compiled pass for a position task), so its step costs
-little more than the loop's (scripts/speed_loop.py measures both; reports/env_step.md).
+The task receives its run's ``sim.setup.RunSetup`` (placement, start, goal, tool orientation)
+and owns its ``sim.step.ControlStep``, which the lean loop (``sim.loop``), the environment's step
+(``sim.env``) and dm_control's generic step (``before_step``) all call.
 """
 
 from __future__ import annotations
@@ -32,26 +29,24 @@ import functools
 import math
 import operator
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
+import pinocchio as pin
 from dm_control import mujoco as dm_mujoco
 from dm_control.rl import control
 from dm_env import specs
 
-from lfd.field import goal_at, is_time_varying
-from robots import Kinematics, RobotModel, load_robot, solve_pose_ik
+from lfd.field import Field
+from lfd.runner import Runner
+from robots import RobotModel, solve_pose_ik
 from sim.collision import Clearance
 from sim.controller import FieldController, Gains
 from sim.errors import PlacementError, SimError
 from sim.perturbations import Perturbation, Schedule, compile_schedule
-from sim.placement import IK_TOLERANCE_M, IK_TOLERANCE_RAD, POSE_POSTURE_GAIN, Placement
-
-if TYPE_CHECKING:
-    from lfd.demos import DemoSet
-    from lfd.field import VelocityField
-    from sim.env import FieldEnvironment
+from sim.placement import IK_TOLERANCE_M, IK_TOLERANCE_RAD, POSE_POSTURE_GAIN
+from sim.setup import RunSetup
+from sim.step import ControlStep, contiguous
 
 OBSERVATION_KEYS: tuple[str, ...] = ("joint_positions", "joint_velocities", "ee_position", "task_position",
                                      "goal", "joint_limit")   # plus "field_velocity" with a field
@@ -62,13 +57,6 @@ REWARD_MARGIN_M = 0.05   # the reward's Gaussian fall-off: 0.1 this far beyond t
 # dm_control.utils.rewards.tolerance's Gaussian with value_at_margin = 0.1: exp(-(d scale)^2 / 2)
 _REWARD_SCALE = math.sqrt(-2.0 * math.log(0.1))
 _F64 = np.dtype(np.float64)
-
-
-def _contiguous(a: np.ndarray, idx: np.ndarray) -> np.ndarray | None:
-    """The view ``a[idx[0]:idx[-1] + 1]`` when the indices idx, shape (n,), are consecutive, else
-    None (copying a slice view costs less than fancy indexing)."""
-    lo = int(idx[0])
-    return a[lo:lo + len(idx)] if np.array_equal(idx, np.arange(lo, lo + len(idx))) else None
 
 
 def tool_body(robot: RobotModel, model: mujoco.MjModel) -> str:
@@ -114,62 +102,56 @@ class FieldTrackingTask(control.Task):
 
     Parameters
     ----------
-    robot, placement : the arm and the map task space -> world.
-    start, goal : array, shape (d,)
-        Demo start and field goal, task coordinates, before perturbation offsets. ``q_start``,
-        ``start_task`` (this episode's start) and ``goal_task`` hold the actual values.
-    control_dt, duration_s : float
-        Control step and episode length, s.
+    setup : RunSetup
+        The run's robot, placement, start, goal and tool orientation (``sim.setup``).
+    control_dt : float
+        Control step, s (an integer number of physics steps of ``mj_model``).
+    goal : array, shape (d,), optional
+        The goal the reward and the observation use, task units, before a ``GoalShift`` (default
+        ``setup.goal``; a moving goal's end, ``lfd.goal``). ``start_task`` (this episode's start),
+        ``q_start`` and ``goal_task`` hold the actual values.
     start_radius : float
         > 0: each episode starts at a point drawn uniformly in the ball of this radius (task
         units) around the start, from ``np.random.default_rng(seed)``; points out of the arm's
         reach are redrawn (``START_DRAWS`` tries, then ``PlacementError``).
-    field : callable x (d,) -> v (d,), optional
-        A velocity field in task units; adds the ``field_velocity`` observation.
-    timed : bool
-        ``field`` is time-varying, (x, t [s]) -> v, and gets the simulation time.
+    field : Field, optional
+        A velocity field in task units; adds the ``field_velocity`` observation (its runner,
+        ``lfd.runner``, stepped once per observation: the action ``sim.loop.execute`` would take).
+    mj_model : the simulated model (default ``setup.robot.mj_model``).
     Others as ``sim.controller.FieldController``.
     """
 
-    def __init__(self, robot: RobotModel, placement: Placement, start: np.ndarray, goal: np.ndarray,
-                 control_dt: float, duration_s: float, ik: str = "dls",
-                 perturbations: Sequence[Perturbation] = (), rotation_ref: np.ndarray | None = None,
-                 gains: Gains = Gains(), feedforward: bool = True,
+    def __init__(self, setup: RunSetup, control_dt: float, *, goal: np.ndarray | None = None, ik: str = "dls",
+                 perturbations: Sequence[Perturbation] = (), gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
-                 field: Callable[..., np.ndarray] | None = None, dynamics: str = "mujoco",
-                 timed: bool = False, clearance: Clearance | None = None) -> None:
+                 field: Field | None = None, dynamics: str = "mujoco", clearance: Clearance | None = None) -> None:
+        robot, placement = setup.robot, setup.placement
         model = robot.mj_model if mj_model is None else mj_model
+        self.setup = setup
         self.robot, self.placement, self.control_dt = robot, placement, float(control_dt)
-        self.n_steps = int(round(duration_s / control_dt))
+        self.n_steps = int(round(setup.duration_s / control_dt))
         bodies = {model.body(i).name: i for i in range(model.nbody)}
         self.schedule: Schedule = compile_schedule(
             perturbations, placement, bodies, tool_body(robot, model), robot.n, self.n_steps, control_dt)
         self.perturbations = tuple(perturbations)
         self._nmocap = int(model.nmocap)
-        self._start_nominal = np.asarray(start, dtype=np.float64) + self.schedule.start_offset_task
+        self._start_nominal = setup.start + self.schedule.start_offset_task
         turn = self.schedule.start_turn_world
         if placement.pose and np.any(turn != 0):   # the start's orientation turned by exp(theta u), world
-            import pinocchio as pin
-
             rot = pin.exp3(turn) @ placement.rotation_to_world(self._start_nominal)
             self._start_nominal = placement.to_task(placement.to_world(self._start_nominal), rot)
         self.start_task = self._start_nominal.copy()
-        self.goal_task = np.asarray(goal, dtype=np.float64) + self.schedule.goal_offset_task
+        goal = setup.goal if goal is None else np.asarray(goal, dtype=np.float64)
+        self.goal_task = goal + self.schedule.goal_offset_task
         self.goal_world = placement.to_world(self.goal_task)
         if not (np.isfinite(start_radius) and start_radius >= 0):
             raise SimError(f"start radius must be >= 0, got {start_radius}")
         self.start_radius = float(start_radius)
         self._rng = np.random.default_rng(seed)
         self.field = field
-        self._timed = timed
+        self._runner: Runner | None = None
         self._shift = self.schedule.goal_offset_task.copy()
-        if placement.pose:    # the field gives the orientation
-            rotation_ref = None
-        elif rotation_ref is None and not robot.planar:
-            kin = Kinematics(robot)
-            kin.update(robot.q_home)
-            rotation_ref = kin.ee_rotation().copy()
-        self.rotation_ref = rotation_ref
+        self.rotation_ref = setup.rotation_ref
         q0, err, rot_err = self._start_joints(self.start_task)
         if not (err <= IK_TOLERANCE_M and (rot_err <= IK_TOLERANCE_RAD or not placement.pose)):
             p0 = placement.to_world(self.start_task)
@@ -178,9 +160,11 @@ class FieldTrackingTask(control.Task):
                                  f"'{robot.name}' (missed by {miss})")
         self.q_start = q0
         self.controller = FieldController(robot, placement, control_dt, ik=ik,
-                                          rotation_ref=rotation_ref, gains=gains, feedforward=feedforward,
+                                          rotation_ref=self.rotation_ref, gains=gains, feedforward=feedforward,
                                           mj_model=model, dynamics=dynamics, clearance=clearance)
-        self.step_index = 0
+        #: the control step (``sim.step``) that the loop, the environment and ``before_step`` call
+        self.step = ControlStep(robot, self.controller, self.schedule,
+                                int(round(self.control_dt / float(model.opt.timestep))))
         self.clipped_actions = 0
         self._qadr, self._dadr = robot.mj_qpos_adr, robot.mj_dof_adr
         self._acts = robot.mj_actuator_ids
@@ -248,24 +232,33 @@ class FieldTrackingTask(control.Task):
             data.mocap_pos[:] = self.schedule.mocap_pos[0]
         data.ctrl[self._acts] = self.q_start if self.controller.actuation == "position" else 0.0
         self.controller.reset(self.q_start)
-        self.step_index = 0
+        self.step.bind(physics.model.ptr, data)
+        self.step.reset()
         self.clipped_actions = 0
+        self._runner = None if self.field is None else self.field.runner(self.start_task - self._shift,
+                                                                          self.control_dt)
+
+    @property
+    def step_index(self) -> int:
+        """The index of the next control step (``ControlStep.k``)."""
+        return self.step.k
+
+    @step_index.setter
+    def step_index(self, k: int) -> None:
+        self.step.k = int(k)
 
     def before_step(self, action: np.ndarray, physics: ArmPhysics) -> None:
         """Check the action and write the commands; with ``FieldController.split`` (MuJoCo's
         computed torque, whole-arm clearance) it first runs ``mj_step1`` for M(q), the bias forces
         and the geoms' poses at this state (the ``mj_step`` that follows recomputes them,
-        identically). The hooks of dm_control's generic step; ``sim.env.FieldEnvironment.step``
-        runs the same control without them."""
+        identically): ``ControlStep.begin`` and ``command``. The hooks of dm_control's generic step;
+        ``sim.env.FieldEnvironment.step`` runs the same control step without them."""
         v = self.check_action(action)
-        model, data = physics.model.ptr, physics.data.ptr
-        if self.controller.split:
-            mujoco.mj_step1(model, data)
-        q = data.qpos[self._qadr]
-        p = self.controller.measure(q)
-        if self.placement.pose:   # the twist of a pose command is taken at the measured chart point
-            self.controller.to_task(p)
-        self.apply(data, q, data.qvel[self._dadr], v, model)
+        step = self.step
+        if step.data is not physics.data.ptr:
+            step.bind(physics.model.ptr, physics.data.ptr)
+        step.begin()
+        step.command(v)
 
     def after_step(self, physics: ArmPhysics) -> None:
         """Position kinematics at the new state, so ``ee_position`` (site_xpos) describes the
@@ -338,7 +331,7 @@ class FieldTrackingTask(control.Task):
             return
         self._data = data
         self._qpos, self._qvel = data.qpos, data.qvel
-        self._qpos_arm, self._qvel_arm = _contiguous(data.qpos, self._qadr), _contiguous(data.qvel, self._dadr)
+        self._qpos_arm, self._qvel_arm = contiguous(data.qpos, self._qadr), contiguous(data.qvel, self._dadr)
         # readers of fresh copies of the arm's q and qdot: a slice view's copy, else fancy indexing
         self._read_q = self._qpos_arm.copy if self._qpos_arm is not None else functools.partial(
             data.qpos.__getitem__, self._qadr)
@@ -398,9 +391,8 @@ class FieldTrackingTask(control.Task):
             obs["task_position"] = x = row[s_x]
             obs["goal"] = row[s_goal]
             obs["joint_limit"] = row[s_limit]
-            if self.field is not None:
-                v = self.field(x - self._shift, self._data.time) if self._timed else self.field(x - self._shift)
-                obs["field_velocity"] = np.array(v, dtype=np.float64)
+            if self._runner is not None:
+                obs["field_velocity"] = np.array(self._runner(x - self._shift, self._data.time), dtype=np.float64)
             return reward, obs
         q, qdot, p = self._read_q(), self._read_qdot(), self._site_pos.copy()
         px, py, pz = p.tolist()
@@ -426,9 +418,8 @@ class FieldTrackingTask(control.Task):
         obs["task_position"] = x
         obs["goal"] = self.goal_task.copy()
         obs["joint_limit"] = limit
-        if self.field is not None:
-            v = self.field(x - self._shift, self._data.time) if self._timed else self.field(x - self._shift)
-            obs["field_velocity"] = np.array(v, dtype=np.float64)
+        if self._runner is not None:
+            obs["field_velocity"] = np.array(self._runner(x - self._shift, self._data.time), dtype=np.float64)
         return self._goal_reward(px, py, pz), obs
 
     def _goal_reward(self, px: float, py: float, pz: float) -> float:
@@ -501,166 +492,3 @@ class FieldTrackingTask(control.Task):
             raise SimError(f"mocap path must be finite with shape ({self.n_steps + 1}, {self._nmocap}, 3), "
                            f"got {path.shape}")
         self.schedule.mocap_pos = path
-
-    # ---------------------------------------------------------------- shared with the fast loop
-    def apply(self, data: mujoco.MjData, q: np.ndarray, qdot: np.ndarray | None, v: np.ndarray,
-              model: mujoco.MjModel | None = None) -> None:
-        """Write the actuator commands for task velocity v, shape (d,), at the measured q, qdot,
-        shape (n,) (``controller.measure(q)`` already called), and this control step's perturbations.
-
-        With ``model``: the controller's fused path (``FieldController.fast_command``); computed
-        torque with ``dynamics="mujoco"`` then needs ``mj_step1`` done at this state, and the caller
-        must run ``mj_step2`` next: joint-velocity noise, added after the command, reruns
-        ``mj_step1`` so the physics sees the noisy velocity (as a plain ``mj_step`` would)."""
-        k = self.step_index
-        if model is None:
-            data.ctrl[self._acts] = self.controller.command(q, data.qvel[self._dadr] if qdot is None else qdot, v)
-        else:
-            self.controller.fast_command(model, data, q, v)
-        s = self.schedule
-        if s.push_body >= 0:
-            k0, k1 = s.push_steps
-            if k0 <= k < k1:
-                data.xfrc_applied[s.push_body] = s.push_force
-            elif k == k1:
-                data.xfrc_applied[s.push_body] = 0.0
-        if s.mocap_pos is not None and k < len(s.mocap_pos):   # moving obstacles where they are at t_k
-            data.mocap_pos[:] = s.mocap_pos[k]
-        if s.qvel_noise is not None and k < len(s.qvel_noise):
-            data.qvel[self._dadr] += s.qvel_noise[k]
-            if model is not None and self.controller.split:
-                mujoco.mj_step1(model, data)
-        self.step_index = k + 1
-
-
-def _demo_defaults(robot: RobotModel, demos: str | DemoSet, demo_index: int, placement: Placement | None,
-                   start: np.ndarray | None, goal: np.ndarray | None, field_gives_goal: bool,
-                   duration_s: float | None, settle_s: float, rotation_ref: np.ndarray | None
-                   ) -> tuple[Placement, np.ndarray, np.ndarray | None, float, np.ndarray | None]:
-    """``make_environment``'s defaults from the demos: placement (checked reachable), start (demo
-    ``demo_index``'s first sample), goal (the demos' goal unless given or a field gives it),
-    duration (the demo's plus ``settle_s``) and the tool rotation to hold."""
-    from lfd.demos import load_demos
-
-    demo_set = load_demos(demos) if isinstance(demos, str) else demos
-    if not 0 <= demo_index < demo_set.n_demos:
-        raise SimError(f"demo index {demo_index} out of range: {demo_set.name} has {demo_set.n_demos} demos")
-    demo_set_is_pose = demo_set.has_orientation
-    if demo_set_is_pose:   # poses run where recorded, as chart points (sim.placement)
-        from lfd.pose import PoseChart, chart_demos
-
-        chart = placement.chart if placement is not None and placement.chart is not None else PoseChart.of(demo_set)
-        demo_set = chart_demos(demo_set, chart)
-        if placement is None:
-            placement = Placement.recorded(chart, robot)
-            placement.check_reachable(robot, demo_set.x)
-    if rotation_ref is None and not robot.planar and not demo_set_is_pose:   # a pose task turns its tool
-        kin = Kinematics(robot)
-        kin.update(robot.q_home)
-        rotation_ref = kin.ee_rotation().copy()
-    if placement is None:
-        placement = Placement.auto(robot, demo_set.x)
-        placement.check_reachable(robot, demo_set.x, rotation=rotation_ref)
-    if start is None:
-        start = demo_set.x[demo_index, 0]
-    if goal is None and not field_gives_goal:
-        goal = demo_set.goal
-    if duration_s is None:
-        duration_s = float(demo_set.t[demo_index, -1] - demo_set.t[demo_index, 0]) + settle_s
-    return placement, start, goal, duration_s, rotation_ref
-
-
-def _control_dt(control_hz: float, timestep: float) -> float:
-    """The control period, s: an integer number of physics steps (else ``SimError``)."""
-    if not control_hz > 0:
-        raise SimError(f"control rate must be positive, got {control_hz}")
-    n_sub = (1.0 / control_hz) / timestep
-    if n_sub < 1 - 1e-9 or abs(n_sub - round(n_sub)) > 1e-6:
-        raise SimError(f"control rate {control_hz:g} Hz must divide the physics rate {1 / timestep:g} Hz")
-    return round(n_sub) * timestep
-
-
-def _require(placement: Placement | None, start: np.ndarray | None, goal: np.ndarray | None,
-             field: VelocityField | None) -> tuple[Placement, np.ndarray, np.ndarray]:
-    """The placement, start and goal ``make_environment`` needs, checked (``SimError`` if missing)."""
-    if placement is None or start is None or goal is None:
-        raise SimError("make_environment needs demos, or a placement, a start and a goal (or a learner_field)")
-    if field is not None and field.dim != placement.dim:
-        raise SimError(f"the field is {field.dim}-D but the placement is {placement.dim}-D")
-    return placement, start, goal
-
-
-def _robot(robot: str | RobotModel, actuation: str | None) -> RobotModel:
-    """The robot of ``make_environment``: a name loaded with ``actuation`` (default ``torque``), or a
-    loaded robot, whose own actuation ``actuation`` (if given) must be."""
-    if isinstance(robot, str):
-        return load_robot(robot, actuation=actuation or "torque")
-    if actuation is not None and actuation != robot.actuation:
-        raise SimError(f"robot '{robot.name}' was loaded with actuation='{robot.actuation}', not '{actuation}'")
-    return robot
-
-
-def make_environment(robot: str | RobotModel, placement: Placement | None = None, start: np.ndarray | None = None,
-                     goal: np.ndarray | None = None, *, demos: str | DemoSet | None = None,
-                     learner_field: VelocityField | None = None, seed: int | None = None,
-                     start_radius: float = 0.0, demo_index: int = 0, control_hz: float = 500.0,
-                     duration_s: float | None = None, settle_s: float = 1.5, ik: str = "dls",
-                     actuation: str | None = None, perturbations: Sequence[Perturbation] = (),
-                     rotation_ref: np.ndarray | None = None, gains: Gains = Gains(),
-                     feedforward: bool = True, physics: ArmPhysics | None = None,
-                     dynamics: str = "mujoco", clearance: Clearance | None = None) -> FieldEnvironment:
-    """A dm_control Environment of ``robot`` following task velocities (see the module docstring):
-    a ``sim.env.FieldEnvironment``, whose ``step`` is the lean one of ``sim.loop``.
-
-    One call from names::
-
-        env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
-
-    Parameters
-    ----------
-    robot, actuation : str or RobotModel, and str or None
-        A built-in name (``planar``, ``panda``), loaded with ``actuation`` (default ``torque``), or a
-        loaded robot, which brings its own (``RobotModel.actuation``; another one: ``SimError``).
-    placement, start, goal : optional
-        Task space -> robot, and the start and goal, shape (d,), task units. Each defaults from
-        ``demos``: ``Placement.auto`` (checked reachable), demo ``demo_index``'s first sample, and
-        ``learner_field.goal`` (else the demos' goal). Without ``demos``, ``placement`` and
-        ``start`` are required, and ``goal`` unless a ``learner_field`` gives it.
-    demos : str or DemoSet, optional
-        A demo SPEC (``spiral``, ``lasa:Angle``, a file; see ``lfd.load_demos``) or a DemoSet.
-    learner_field : VelocityField, optional
-        Adds the ``field_velocity`` observation (the action ``sim.loop.execute`` would take) and
-        gives the goal.
-    seed, start_radius : random initial states: with ``start_radius`` > 0 (task units) each
-        episode starts uniformly in that ball around the start, drawn from ``seed``.
-    duration_s : float, optional
-        Episode length, s; default: the demo's duration plus ``settle_s`` with ``demos``, else 6.
-    control_hz : the control rate, an integer divisor of the physics rate; the Environment has
-        ``legacy_step=False`` (a plain ``mj_step`` per physics step).
-    physics : an ``ArmPhysics.from_robot(robot)`` to reuse one compiled model across environments.
-    dynamics : computed torque from MuJoCo's own M(q) and bias forces (``mujoco``, the default) or
-        Pinocchio's RNEA (``pinocchio``); see ``sim.controller``.
-    clearance : whole-arm collision dampers in the IK (``sim.collision``; default None: none).
-    Others as ``FieldTrackingTask`` and ``sim.controller.FieldController``.
-    """
-    robot = _robot(robot, actuation)
-    if demos is not None:
-        placement, start, goal, duration_s, rotation_ref = _demo_defaults(
-            robot, demos, demo_index, placement, start, goal, learner_field is not None, duration_s, settle_s,
-            rotation_ref)
-    duration_s = 6.0 if duration_s is None else duration_s
-    if goal is None and learner_field is not None:   # where a moving goal ends
-        goal = goal_at(learner_field, duration_s)
-    placement, start, goal = _require(placement, start, goal, learner_field)
-    physics = ArmPhysics.from_robot(robot) if physics is None else physics
-    control_dt = _control_dt(control_hz, physics.model.opt.timestep)
-    task = FieldTrackingTask(robot, placement, start, goal, control_dt, duration_s, ik=ik,
-                             perturbations=perturbations, rotation_ref=rotation_ref,
-                             gains=gains, feedforward=feedforward, mj_model=physics.model.ptr,
-                             start_radius=start_radius, seed=seed,
-                             field=None if learner_field is None else learner_field.single_point_evaluator(),
-                             timed=learner_field is not None and is_time_varying(learner_field),
-                             dynamics=dynamics, clearance=clearance)
-    from sim.env import FieldEnvironment  # here: sim.env imports this module
-
-    return FieldEnvironment(physics, task, time_limit=duration_s, control_timestep=control_dt, legacy_step=False)

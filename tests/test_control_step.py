@@ -59,7 +59,7 @@ def test_mujoco_and_pinocchio_inverse_dynamics_track_alike(name: str, perts: tup
     for dynamics in ("mujoco", "pinocchio"):
         env = _env(name, perturbations=perts, dynamics=dynamics)
         assert env.task.controller.uses_mj_dynamics == (dynamics == "mujoco")
-        runs[dynamics] = execute(env, field.single_point_evaluator())
+        runs[dynamics] = execute(env, field.runner(env.task.start_task, env.task.control_dt))
     a, b = runs["mujoco"], runs["pinocchio"]
     assert np.linalg.norm(a.ee[-1] - a.ee[0]) > 0.01                 # it moved
     assert np.abs(a.ee - b.ee).max() <= TRACK_TOL_M
@@ -148,7 +148,7 @@ def test_phase_lead_adds_the_command_difference_once_and_resets() -> None:
         env = _env("panda", gains=Gains(lead_s=0.01))
         if not fast:
             env.task.controller._fast_ok = False
-        ro = execute(env, _field().single_point_evaluator())
+        ro = execute(env, _field().runner(env.task.start_task, env.task.control_dt))
         if fast:
             ee_fast = ro.ee
     assert np.max(np.linalg.norm(ro.ee - ee_fast, axis=1)) < 1e-9

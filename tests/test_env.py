@@ -22,6 +22,7 @@ import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import Kinematics, RobotModel, load_robot
 from sim.loop import execute
+from sim.task import OBSERVATION_KEYS
 
 EPISODE_S = 0.1                   # 50 control steps at 500 Hz
 FK_TOL_M = 1e-9                   # observation vs forward kinematics of the observed joints
@@ -107,7 +108,7 @@ def test_goal_and_joint_limit_flag_in_the_observation() -> None:
     env = environment("panda", perturbations=(sim.GoalShift(distance_m=0.02, seed=3),))
     ts = env.reset()
     o = ts.observation
-    assert tuple(o)[:6] == sim.OBSERVATION_KEYS
+    assert tuple(o)[:6] == OBSERVATION_KEYS
     shift = env.task.placement.to_world(o["goal"]) - env.task.placement.to_world(d.goal)
     assert np.linalg.norm(shift) == pytest.approx(0.02, rel=1e-9)
     np.testing.assert_allclose(o["task_position"], d.x[0, 0], atol=1e-4 / env.task.placement.scale)
@@ -204,7 +205,7 @@ def test_task_state_restores_the_controller_too() -> None:
 def test_make_environment_in_one_call() -> None:
     env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
     ts = env.reset()
-    assert tuple(ts.observation) == sim.OBSERVATION_KEYS
+    assert tuple(ts.observation) == OBSERVATION_KEYS
     assert env.task.controller.actuation == "torque" and env.task.robot.name == "panda"
     spiral = lfd.load_demos("spiral")
     np.testing.assert_allclose(ts.observation["goal"], spiral.goal, atol=1e-12)
@@ -223,7 +224,7 @@ def test_make_environment_in_one_call() -> None:
 def test_execute_and_a_plain_dm_env_loop_agree(name: str) -> None:
     field = sink_field(demos())
     env = environment(name, duration_s=1.0)
-    ro = execute(env, field.single_point_evaluator())
+    ro = execute(env, field.runner(env.task.start_task, env.task.control_dt))
     f = field.single_point_evaluator()
     ts = env.reset()
     ee = [ts.observation["ee_position"]]
@@ -246,7 +247,7 @@ def test_gymnasium_through_shimmy() -> None:
     env = shimmy.DmControlCompatibilityV0(environment("planar", learner_field=sink_field(demos())))
     check_env(env, skip_render_check=True)
     obs, _ = env.reset(seed=0)
-    assert set(obs) == set(sim.OBSERVATION_KEYS) | {"field_velocity"}
+    assert set(obs) == set(OBSERVATION_KEYS) | {"field_velocity"}
     assert isinstance(env.action_space, gymnasium.spaces.Box) and env.action_space.shape == (2,)
     obs, reward, terminated, truncated, _ = env.step(obs["field_velocity"].astype(np.float32))
     assert 0.0 <= reward <= 1.0 and not terminated
@@ -282,7 +283,7 @@ def test_lean_step_rollout_equals_the_lean_loop(name: str, actuation: str, perts
     env = sim.make_environment(load_robot(name, actuation=actuation), demos=demos(), duration_s=0.6,
                                perturbations=perts)
     assert isinstance(env, FieldEnvironment) and env.lean
-    ro = execute(env, field.single_point_evaluator())
+    ro = execute(env, field.runner(env.task.start_task, env.task.control_dt))
     ee, q, steps = _env_rollout(env, field.single_point_evaluator())
     assert ee.shape == ro.ee.shape and len(steps) == env.task.n_steps + 1
     assert np.allclose(ee, ro.ee, rtol=0, atol=LEAN_TOL), np.abs(ee - ro.ee).max()

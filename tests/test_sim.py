@@ -20,6 +20,7 @@ from robots import load_robot
 from sim import experiment as sim_experiment
 from sim.errors import PlacementError, RenderError, SimulationError
 from sim.perturbations import compile_schedule
+from sim.task import OBSERVATION_KEYS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -136,16 +137,16 @@ def test_run_length_is_time_factor_times_the_demo_plus_settling(planar, demos):
 
 def test_environment_reset_and_step(panda, demos):
     pl = sim.Placement.auto(panda, demos.x)
-    env = sim.make_environment(panda, pl, demos.x[0, 0], demos.goal, duration_s=0.02)
+    env = sim.make_environment(sim.RunSetup.resolve(panda, demos, placement=pl), duration_s=0.02)
     ts = env.reset()
-    assert tuple(ts.observation) == sim.OBSERVATION_KEYS
+    assert tuple(ts.observation) == OBSERVATION_KEYS
     shapes = {k: v.shape for k, v in ts.observation.items()}
     assert shapes == {"joint_positions": (7,), "joint_velocities": (7,), "ee_position": (3,),
                       "task_position": (2,), "goal": (2,), "joint_limit": (7,)}
     np.testing.assert_allclose(ts.observation["ee_position"], pl.to_world(demos.x[0, 0]), atol=1e-5)
     spec = env.action_spec()
     assert spec.shape == (2,) and spec.name == "ee_velocity"
-    assert set(env.observation_spec()) == set(sim.OBSERVATION_KEYS)
+    assert set(env.observation_spec()) == set(OBSERVATION_KEYS)
     v = np.array([0.5, 0.0])                      # task units / s along task x
     steps = 0
     while not ts.last():

@@ -139,6 +139,10 @@ class Field(Protocol):
         """The run from ``start``, shape (d,), stepped every ``dt`` s (``lfd.runner``)."""
         ...
 
+    def toward(self, goal: np.ndarray) -> Any:
+        """The same learned motion toward another goal (``VelocityField.toward``)."""
+        ...
+
     def trajectory(self, x0: np.ndarray, t: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
         """Single-start RK4 (Eq. (8)) from x0, shape (d,), over t, shape (T,): x (T, d) and the
         phase (T,) of a field that has one, else None."""
@@ -438,6 +442,36 @@ class VelocityField:
 
         return f
 
+    # ---- what the field states about its own contraction (``lfd.certify``): nothing, unless its learner does
+    @property
+    def rate(self) -> float | None:
+        """The contraction rate the field is built with, 1/s; None: none (``ContractingField`` has one)."""
+        return None
+
+    @property
+    def metric_bounds(self) -> tuple[float, float] | None:
+        """(a, b) with a I <= M(x) <= b I for every x in R^d, user units; None: no metric stated."""
+        return None
+
+    @property
+    def lipschitz_bound(self) -> float | None:
+        """An upper bound of the field's Lipschitz constant in x, 1/s; None: none stated."""
+        return None
+
+    def contraction_metric(self) -> Callable[[Tensor], Tensor] | None:
+        """M_n: x_n (B, d) -> (B, d, d), the metric the field is built to contract in (normalised units,
+        differentiable; ``lfd.certify`` checks Eq. (C1) in it); None: none (the identity is checked)."""
+        return None
+
+    def jacobian_lipschitz_bound(self) -> float | None:
+        """An upper bound of Lip(J_f) from the weights; None: none known."""
+        return None
+
+    def closed_form_rollout(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+        """The exact flow from x0, shape (B, d), over t, shape (T,): (B, T, d) where the learner has it
+        in closed form; None: integrate instead (``rollout``)."""
+        return None
+
     def save(self, path: str | os.PathLike) -> None:
         """Write the model file atomically (see ``lfd.modelfile``)."""
         from lfd.modelfile import save_payload
@@ -552,6 +586,12 @@ class FieldWrapper:
     def goal_samples(self) -> np.ndarray:
         """Every place the goal visits, shape (G, d): the wrapped field's."""
         return self.field.goal_samples()
+
+    def toward(self, goal: np.ndarray) -> Any:
+        """A wrapped field takes its goal from the field it wraps: ``ConfigError`` (call ``toward``
+        on that field, then wrap it)."""
+        raise ConfigError("toward(goal) applies to a learned field, before it is wrapped (obstacles, a "
+                          "moving goal)")
 
     def runner(self, start: np.ndarray | None, dt: float) -> Runner:
         """A ``lfd.runner.TimedRunner`` of the single-point evaluator, (x, t) -> dx/dt."""

@@ -9,12 +9,12 @@ with rendering_off():   # MuJoCo picks its GL back-end at import; a robot render
     import mujoco  # noqa: F401
 
 from robots.errors import RobotError  # noqa: E402
-from robots.ik import IK_BACKENDS, DifferentialIK, solve_pose_ik, solve_position_ik  # noqa: E402
+from robots.ik import IK_BACKENDS, DifferentialIK, solve_pose_ik  # noqa: E402
 from robots.kinematics import Kinematics  # noqa: E402
 from robots.loader import BUILTIN_ROBOTS, load_robot  # noqa: E402
 from robots.model import RobotModel  # noqa: E402
 
 __all__ = [
     "BUILTIN_ROBOTS", "DifferentialIK", "IK_BACKENDS", "Kinematics", "RobotError", "RobotModel", "load_robot",
-    "solve_pose_ik", "solve_position_ik",
+    "solve_pose_ik",
 ]

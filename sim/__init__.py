@@ -1,6 +1,6 @@
 """sim: run a learned velocity field on a MuJoCo arm in closed loop, perturb it, score it, film it.
 
-The whole job in one call (``sim.pipeline``; ``scripts/demo_arm.py`` is its command line)::
+The whole job in one call (``sim.pipeline``; ``lfd-demo-arm`` is its command line)::
 
     import sim
     report = sim.run_job(sim.ArmJob(robot="panda", learners=("contraction",), scenarios=("push",)))
@@ -22,11 +22,7 @@ As a dm_env environment (for RL; gymnasium through ``shimmy.DmControlCompatibili
     env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
     ts = env.step(v)                               # v: task velocity, shape (d,)
 
-The top level is what a user of the arm needs (``__all__``); the rest lives in its modules:
-``sim.setup`` (a run's setup, resolved once), ``sim.step`` (the control step), ``sim.task`` and
-``sim.env`` (the dm_control task and environment), ``sim.loop`` (the recorded closed loop),
-``sim.controller`` (twist -> IK -> actuators), ``sim.render``, ``sim.metrics``, ``sim.obstacles``,
-``sim.collision`` (whole-arm dampers), ``sim.errors``.
+The rest lives in its modules: ``sim.setup`` (a run's setup), ``sim.step`` (the control step), ``sim.env``.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""The arm job's command line (``scripts/demo_arm.py``, installed as ``lfd-demo-arm``): flags ->
-``sim.pipeline.ArmJob`` -> ``sim.pipeline.run_job`` -> a results table.
+"""The arm job's command line (``lfd-demo-arm``): flags ->
+``sim.job.ArmJob`` -> ``sim.pipeline.run_job`` -> a results table.
 
 Errors in the input print one line ``demo_arm: error: ...`` and exit 2 before any training or
 simulation; Ctrl-C or SIGTERM exits 130 and leaves no output of the job behind.
@@ -119,6 +119,14 @@ def vector3(text: str) -> tuple[float, float, float]:
     return v[0], v[1], v[2]
 
 
+def goal_vector(text: str) -> tuple[float, ...]:
+    """A goal: 2 or 3 task coordinates, or a pose x,y,z,qw,qx,qy,qz (finite numbers)."""
+    v = tuple(_number(s) for s in text.split(","))
+    if len(v) not in (2, 3, 7) or not all(math.isfinite(c) for c in v):
+        raise argparse.ArgumentTypeError(f"expected X,Y[,Z] or X,Y,Z,QW,QX,QY,QZ, got '{text[:60]}'")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The flags of the arm job (every one an ``ArmJob`` field)."""
     from lfd import commands as lfd_commands  # the seed rule every command shares
@@ -184,6 +192,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-arm-clearance", action="store_true",
                    help="keep only the tool point clear of obstacles and table (no collision dampers in the IK "
                         "for the rest of the arm, no hand margin)")
+    p.add_argument("--goal", type=goal_vector, metavar="X,Y[,Z[,QW,QX,QY,QZ]]",
+                   help="run every field toward this goal instead of the demos' mean end, in the demos' frame "
+                        "(task units; a pose: metres and a unit quaternion, or the position alone)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--goal-shift", metavar="T:DX,DY[,DZ]", help="move the goal by DX (task units) at T s")
     g.add_argument("--goal-path", metavar="FILE", help="the goal follows this trajectory: CSV t,x,y[,z] or NPZ t, x")
@@ -207,7 +218,7 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
         actuation=args.actuation, plane=args.plane, size_m=args.size_m, placement=args.placement,
         origin=args.origin, scale=args.scale, shift=args.shift,
         push=PushSpec(args.push_force, args.push_start, args.push_duration, args.push_direction),
-        obstacles=tuple(args.obstacle), goal_shift=args.goal_shift, goal_path=args.goal_path,
+        obstacles=tuple(args.obstacle), goal=args.goal, goal_shift=args.goal_shift, goal_path=args.goal_path,
         arm_clearance=not args.no_arm_clearance, control_hz=args.control_hz, iters=args.iters, quiet=args.quiet,
         command=tuple(command))
 

@@ -1,36 +1,15 @@
 """Whole-arm clearance: velocity dampers between every collision geom of the arm and the scene.
 
-The field keeps the tool point out of the obstacles (``lfd.obstacles``); this module keeps the
-rest of the arm out of them, and out of the table and of itself, through the IK. For each pair
-(a geom of the arm, a geom it must not touch) that passes a broad phase (each geom's box
-``geom_aabb``, in its own frame, within the influence distance d_i of the other's bounding sphere;
-the table, a slab, is bounded by its top face), MuJoCo's ``mj_geomDistance`` gives the distance d
-and the nearest points p_1 (arm) and p_2 (other), n = (p_2 - p_1) / |p_2 - p_1|. Within d_i the
-pair adds one velocity damper (Faverjon and Tournassoud 1987), Eq. (A1) of docs/equations.md, to
-the IK QP (``robots.ik.constrained``, Eq. (A2)):
-
-    d_dot = -n^T (J_1 - J_2) qdot >= -k (d - d_s)   <=>   n^T (J_1 - J_2) qdot <= k (d - d_s)
-
-with J_1, J_2 the translational Jacobians at p_1 and p_2 (J_2 = 0 for the scene), d_s the
-safety distance and k the damper rate: in continuous time d decays toward d_s at most at rate
-k and never crosses it. A moving obstacle is taken as still at each step (its own velocity is not
-in the row). A pair beyond d_i adds nothing, so far from everything the IK is the plain one (the
-compiled DLS fast path).
-
-Each control step first asks whether any damper binds for the plain IK's joint velocities
-(``ArmClearance.check``; the QP is solved only where one does, with every row of ``rows``). That
-check measures a pair with ``mj_geomDistance`` only where a certified lower bound on its distance
-leaves its row able to bind: the broad phase's bound, or the distance measured at an earlier step
-less how far any point of either geom has moved since (the geoms are rigid: that distance cannot
-shrink faster), against a bound on |n^T (J_1 - J_2) qdot| from the geoms' bounding spheres. It
-decides as the rows would, and the smallest distance it reports is the rows' (pairs whose bound
-lies below the smallest measured distance are measured as well).
-
-The pairs: every geom an arm joint moves against every obstacle (geoms named ``obstacle_<i>``,
-``sim.obstacles``) and the table top, except the links within ``SELF_SKIP`` links of the world
-against the table they stand on; and geoms of the robot against each other (one of them moved by
-the arm) on bodies more than ``SELF_SKIP`` links apart along the chain, leaving out pairs within
-d_i at the home posture (neighbours by design).
+The field keeps the tool point out of the obstacles (``lfd.obstacles``); this module keeps the rest
+of the arm out of them, out of the table and out of itself, through the IK: one velocity damper
+(Faverjon and Tournassoud 1987), Eq. (A1) of docs/equations.md, per pair of geoms within the
+influence distance, added to the IK QP (``robots.ik.constrained``, Eq. (A2)). ``ArmClearance.check``
+decides each control step, measuring a pair with ``mj_geomDistance`` only where a certified lower
+bound on its distance leaves its row able to bind, whether any damper binds for the plain IK's
+joint velocities; ``ArmClearance.rows`` gives the rows where one does. The pairs: every geom an arm
+joint moves against every obstacle (``obstacle_<i>``, ``sim.obstacles``) and the table top (except
+the links within ``SELF_SKIP`` links of the world), and the robot's geoms against each other on
+bodies more than ``SELF_SKIP`` links apart, leaving out pairs within reach at the home posture.
 
 References
 ----------

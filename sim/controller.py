@@ -1,35 +1,16 @@
-"""One control step: task velocity -> tool twist -> differential IK -> actuator command.
+"""The command of one control step: task velocity -> tool twist -> differential IK -> actuator command.
 
-Twist (world axes, LOCAL_WORLD_ALIGNED, rows vx vy vz wx wy wz) from a task velocity v, shape (d,):
+The twist from a task velocity v (Eqs. (S1)-(S2) of docs/equations.md): s A v, with a pull back onto
+the plane for a 2-D task on a spatial arm and the tool orientation held at R_ref on a position task;
+a pose task's chart velocity z_dot gives the whole twist (Eq. (P3)). Then qdot = IK(q, twist)
+(``robots.DifferentialIK``) and the actuator command: velocity servos with a feed-forward for
+``position`` actuators, computed torque from MuJoCo's M(q) and bias forces (or Pinocchio's RNEA)
+for ``torque`` motors, Eq. (S3).
 
-    v_lin = s A v - k_n n n^T (p - o)         (second term: 2-D task on a spatial arm; holds p on the plane)
-    w     = k_r log(R_ref R^T)                (spatial arm: holds the tool orientation R at R_ref)
-
-A pose task (``Placement.pose``, d = 6) instead gives the whole twist from the field: its task point
-is the chart point z = (A^T (p - o) / s, l log(R_g^T A^T R)) of the measured pose (``lfd.pose``, Eq. (P1)),
-and its command z_dot turns into v_lin = s A z_dot[:3] and w = A omega, omega of Eq. (P3). The DLS then
-solves all six rows with unit weights (1 m/s against 1 rad/s); a 7-joint arm meets a 6-D twist exactly
-away from singularities, so the weights act only where the damping does.
-
-qdot = IK(q, twist) (``robots.DifferentialIK``), then the actuator command:
-
-* ``position`` servos (MuJoCo tau = kp (u - q) - kv qdot + gravity compensation), with
-  u = q + qdot_ref (kv + b) / kp, so tau = kv (qdot_ref - qdot) + b qdot_ref: a velocity servo that
-  also pays the joint's viscous damping b (``feedforward=True``, the default), or the plain
-  u = q + qdot_ref dt (``feedforward=False``; it lags and under-speeds).
-* ``torque`` motors, computed torque (the default actuation):
-  tau = M(q) a + c(q, qdot) + b qdot = RNEA(q, qdot, a) + b qdot, a = qddot_ref + k_d (qdot_ref - qdot),
-  qddot_ref = (qdot_ref - qdot_ref_prev) / dt, with M(q) a from ``mujoco.mj_mulM`` and c from the
-  step's own ``mj_step1`` (``dynamics="mujoco"``, no second inverse-dynamics pass) or Pinocchio's RNEA
-  on the same model (``dynamics="pinocchio"``); the two agree to round-off (tests/test_control_step.py).
-
-Fast path (``fast_command``): twist, the DLS solve and the actuator command in one compiled numba
-function (``sim._control_kernel.kernel``), after ``mj_step1`` on MuJoCo's tool site and its
-Jacobian (``measure_site``; Pinocchio's kinematics then run only if the Python path needs them);
-it hands back to the Python path (``twist`` / ``solve_ik`` / ``actuate``, same results up to
-round-off) near a singularity or a joint limit, for a tool orientation error near pi, and for the
-``pink`` IK or custom IK rows. The measured comparison of the commands and of the gain k_d is in
-reports/arm.md (scripts/speed_loop.py refreshes it).
+``fast_command`` runs twist, DLS and command in one compiled numba function
+(``sim._control_kernel.kernel``) on MuJoCo's tool site and its Jacobian after ``mj_step1``; it hands
+back to the Python path (``twist``, ``solve_ik``, ``actuate``: the same results up to round-off) near
+a singularity or a joint limit, for a tool orientation error near pi, and for the ``pink`` IK.
 """
 
 from __future__ import annotations
@@ -75,7 +56,7 @@ class Gains:
     The lead cancels a first-order lag tau of the arm's velocity response to its command when
     tau_lead = tau. The Panda's response lags like that, and a field whose direction turns fast (an
     obstacle-avoiding field beside the obstacle) then drifts outward on every pass and can orbit the
-    goal; a lead of the lag's size removes the orbit (``scripts/panda_obstacles.py`` uses one). The
+    goal; a lead of the lag's size removes the orbit (the arm job uses one with obstacles). The
     lead amplifies fast changes of the command by 1 + 2 tau_lead / dt (a push, joint-velocity
     noise), so it is off unless asked for."""
 

@@ -210,7 +210,7 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
                      settle_s: float = SETTLE_S, ik: str = "dls", actuation: str | None = None,
                      perturbations: Sequence[Perturbation] = (), gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None, dynamics: str = "mujoco",
-                     clearance: Clearance | None = None) -> FieldEnvironment:
+                     clearance: Clearance | None = None, goal: np.ndarray | None = None) -> FieldEnvironment:
     """A dm_control Environment of the arm following task velocities (``sim.task``), whose ``step``
     is the lean one of the module docstring.
 
@@ -239,10 +239,16 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
     physics : an ``ArmPhysics.from_robot(setup.robot)`` to reuse one compiled model.
     dynamics : computed torque from MuJoCo's M(q) and bias forces (``mujoco``) or Pinocchio's RNEA.
     clearance : whole-arm collision dampers in the IK (``sim.collision``; default None: none).
+    goal : array, optional
+        Run toward this goal, in the demos' frame (``RunSetup.resolve``): the ``goal`` observation,
+        and ``learner_field.toward(goal)`` for ``field_velocity``. A position task takes a new goal
+        for each later episode from ``env.task.set_goal`` (read at the reset).
     Others as ``sim.task.FieldTrackingTask`` and ``sim.controller.FieldController``.
     """
     if isinstance(robot, RunSetup):
         setup = robot
+        if goal is not None:
+            raise SimError("a resolved RunSetup brings its goal: give the goal to RunSetup.resolve")
         if actuation is not None and actuation != setup.robot.actuation:
             raise SimError(f"robot '{setup.robot.name}' was loaded with actuation='{setup.robot.actuation}', "
                            f"not '{actuation}'")
@@ -250,15 +256,18 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
         if demos is None:
             raise SimError("make_environment needs demos (a spec or a DemoSet), or a resolved RunSetup")
         demo_set = load_demos(demos) if isinstance(demos, str) else demos
-        setup = RunSetup.resolve(_robot(robot, actuation), demo_set, demo_index=demo_index, settle_s=settle_s)
+        setup = RunSetup.resolve(_robot(robot, actuation), demo_set, demo_index=demo_index, settle_s=settle_s,
+                                 goal=goal)
     if duration_s is not None:
         setup = setup.moved(duration_s=duration_s)
     if learner_field is not None and learner_field.dim != setup.dim:
         raise SimError(f"the field is {learner_field.dim}-D but the placement is {setup.dim}-D")
-    goal = None if learner_field is None else learner_field.goal_at(setup.duration_s)
+    if goal is not None and learner_field is not None:
+        learner_field = learner_field.toward(np.asarray(goal, dtype=np.float64))
+    target = None if learner_field is None else learner_field.goal_at(setup.duration_s)
     physics = ArmPhysics.from_robot(setup.robot) if physics is None else physics
     control_dt = _control_dt(control_hz, physics.model.opt.timestep)
-    task = FieldTrackingTask(setup, control_dt, goal=goal, ik=ik, perturbations=perturbations, gains=gains,
+    task = FieldTrackingTask(setup, control_dt, goal=target, ik=ik, perturbations=perturbations, gains=gains,
                              feedforward=feedforward, mj_model=physics.model.ptr, start_radius=start_radius,
                              seed=seed, field=learner_field, dynamics=dynamics, clearance=clearance)
     return FieldEnvironment(physics, task, time_limit=setup.duration_s, control_timestep=control_dt,

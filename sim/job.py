@@ -1,4 +1,4 @@
-"""An arm job's options: what ``scripts/demo_arm.py``'s flags set, checked before any work.
+"""An arm job's options: what the ``lfd-demo-arm`` flags set, checked before any work.
 
 ``ArmJob`` is what ``sim.run_job`` runs (``sim.pipeline``); ``PushSpec`` the force of its ``push``
 scenario. The job's constants for runs with obstacles are here too.
@@ -56,11 +56,13 @@ class PushSpec:
 
 @dataclass(frozen=True)
 class ArmJob:
-    """Everything one arm job does; the fields mirror ``scripts/demo_arm.py``'s flags.
+    """Everything one arm job does; the fields mirror the ``lfd-demo-arm`` flags (``sim.cli``).
 
     ``learners`` None runs ``DEFAULT_LEARNERS``, or the learner of ``model``; ``out`` None is a fresh
     ``out/demo_arm_<time>``; ``placement`` is ``auto`` (``origin``, ``scale`` or ``size_m`` adjust
     it) or ``recorded`` (3-D demos where they were recorded, metres in the robot's base frame).
+    ``goal`` (task units; for poses the position, or the pose x, y, z, qw, qx, qy, qz, in the demos'
+    frame) runs every field toward it instead of the demos' mean end (``Field.toward``).
     ``obstacles`` are ``lfd.obstacles.parse_obstacle`` texts, in task units; with
     ``arm_clearance`` (the default) the fields keep the tool point the hand's size
     (``sim.collision.hand_margin_m``) more than each obstacle's margin away, and collision dampers in
@@ -97,6 +99,7 @@ class ArmJob:
     push: PushSpec = PushSpec()
     obstacles: tuple[str, ...] = ()
     arm_clearance: bool = True
+    goal: tuple[float, ...] | None = None
     goal_shift: str | None = None
     goal_path: str | None = None
     control_hz: float = 500.0
@@ -129,6 +132,8 @@ class ArmJob:
             raise ConfigError("--placement recorded takes no --origin, --scale or --size-m")
         if self.shift is not None and (self.origin, self.scale, self.size_m) != (None, None, None):
             raise ConfigError("--shift moves recorded poses; it takes no --origin, --scale or --size-m")
+        if self.goal is not None and (len(self.goal) not in (2, 3, 7) or not all(math.isfinite(v) for v in self.goal)):
+            raise ConfigError(f"--goal must be 2 or 3 finite task coordinates or a pose of 7, got {list(self.goal)}")
         if self.iters is not None and self.iters < 1:
             raise ConfigError(f"--iters must be a positive integer, got {self.iters}")
         self.push.check()

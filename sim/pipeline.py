@@ -30,9 +30,11 @@ from typing import Any
 import numpy as np
 
 import lfd
+from lfd import goal as moving_goal
 from lfd.cache import cached_field
 from lfd.errors import ConfigError
 from lfd.field import Field, space_mismatch
+from lfd.learners import get_learner
 from lfd.obstacles import MIN_GOAL_GAMMA, Obstacle, parse_obstacle
 from robots import RobotError, load_robot
 from sim.collision import hand_margin_m
@@ -71,8 +73,6 @@ class JobReport:
 
 def iters_option(learner: str, iters: int) -> dict[str, int]:
     """``{'iters': n}`` or ``{'iterations': n}``, as the learner's Config names it (empty if neither)."""
-    from lfd.learners import get_learner
-
     names = {f.name for f in dataclasses.fields(get_learner(learner).Config)}
     key = next((k for k in ("iters", "iterations") if k in names), None)
     return {} if key is None else {key: iters}
@@ -88,8 +88,6 @@ GoalMotion = tuple[str, Any]
 
 def goal_motion_of(job: ArmJob, dim: int) -> GoalMotion | None:
     """The goal's motion, ``("shift", (t, dx))`` or ``("path", (times, goals))``, read and checked, or None."""
-    from lfd import goal as moving_goal
-
     if job.goal_shift:
         return "shift", moving_goal.parse_goal_shift(job.goal_shift, dim)
     if job.goal_path:
@@ -100,7 +98,7 @@ def goal_motion_of(job: ArmJob, dim: int) -> GoalMotion | None:
     return None
 
 
-def check_goal_motion(motion: GoalMotion, exp: Experiment, demos: lfd.DemoSet, obstacles: list[Obstacle]) -> None:
+def check_goal_motion(motion: GoalMotion, exp: Experiment, obstacles: list[Obstacle]) -> None:
     """Every goal the runs visit must be reachable and clear of the obstacles, as the demos' goal
     is, and a shift must come before the run ends."""
     kind, spec = motion
@@ -108,7 +106,7 @@ def check_goal_motion(motion: GoalMotion, exp: Experiment, demos: lfd.DemoSet, o
         t, dx = spec
         if t >= exp.duration_s:
             raise ConfigError(f"--goal-shift at t = {t:g} s comes after the run ends ({exp.duration_s:g} s)")
-        goals = np.stack([demos.goal, demos.goal + dx])
+        goals = np.stack([exp.setup.goal, exp.setup.goal + dx])
     else:
         goals = spec[1]
     flag = "--goal-shift" if kind == "shift" else "--goal-path"
@@ -123,20 +121,16 @@ def check_goal_motion(motion: GoalMotion, exp: Experiment, demos: lfd.DemoSet, o
 
 def moving(field_: Field, motion: GoalMotion) -> Field:
     """``field_`` re-centred on the moving goal (``lfd.goal.shift_goal`` / ``follow_goal_path``)."""
-    from lfd import goal as moving_goal
-
     kind, spec = motion
     return moving_goal.shift_goal(field_, *spec) if kind == "shift" else moving_goal.follow_goal_path(field_, *spec)
 
 
 def describe_goal_motion(job: ArmJob) -> dict[str, Any] | None:
     """The moving goal's options, for metrics.json."""
-    from lfd.goal import BLEND_S
-
     if job.goal_shift:
-        return {"shift": job.goal_shift, "blend_s": BLEND_S}
+        return {"shift": job.goal_shift, "blend_s": moving_goal.BLEND_S}
     if job.goal_path:
-        return {"path": str(job.goal_path), "blend_s": BLEND_S}
+        return {"path": str(job.goal_path), "blend_s": moving_goal.BLEND_S}
     return None
 
 
@@ -171,9 +165,15 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
                           "is the scenario 'goal')")
     obstacles = [parse_obstacle(text, demos.dim) for text in job.obstacles]
     goal_motion = goal_motion_of(job, demos.dim)
+    # the goal the runs head for: --goal, or the demos' mean end (obstacles are for positions only)
+    goal, whose = (demos.goal, "the demos' goal") if job.goal is None or demos.has_orientation else \
+        (np.asarray(job.goal, dtype=np.float64), "the goal")
+    if goal.shape != (demos.dim,) and not demos.has_orientation:
+        raise ConfigError(f"--goal needs {demos.dim} coordinates for the {demos.dim}-D demos {demos.name}, "
+                          f"got {goal.shape[0]}")
     for o in obstacles:
-        if float(o.gamma(demos.goal)) < MIN_GOAL_GAMMA:
-            raise ConfigError(f"the demos' goal lies inside or too close to the {o.describe()}")
+        if float(o.gamma(goal)) < MIN_GOAL_GAMMA:
+            raise ConfigError(f"{whose} lies inside or too close to the {o.describe()}")
     ee_frame = job.ee_frame
     if ee_frame is None and demos.frame is not None:   # poses run with the frame they were recorded in
         ee_frame = demos.frame
@@ -192,18 +192,18 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
     # the placement's reach, on the scene with the obstacles (moving ones move), before any training
     setup = RunSetup.resolve(robot, demos, plane=job.plane, size_m=job.size_m, origin=job.origin, scale=job.scale,
                              shift=job.shift, recorded=job.placement == "recorded", obstacles=obstacles,
-                             time_factor=OBSTACLE_TIME_FACTOR if obstacles else 1.0)
+                             time_factor=OBSTACLE_TIME_FACTOR if obstacles else 1.0, goal=job.goal)
     exp = Experiment(setup, control_hz=job.control_hz, ik=job.ik, fps=job.fps,
                      gains=Gains(lead_s=OBSTACLE_LEAD_S) if obstacles else Gains(),
                      clearance="auto" if job.arm_clearance else None)
     hand = hand_margin_m(robot) if job.arm_clearance else 0.0
     avoided = grown(obstacles, hand / exp.placement.scale)
     for o, g in zip(obstacles, avoided):
-        if float(g.gamma(demos.goal)) < MIN_GOAL_GAMMA:
-            raise ConfigError(f"the demos' goal lies within the hand's size ({hand * 1e3:.0f} mm) "
+        if float(g.gamma(goal)) < MIN_GOAL_GAMMA:
+            raise ConfigError(f"{whose} lies within the hand's size ({hand * 1e3:.0f} mm) "
                               f"of the {o.describe()}: move the obstacle, or give --no-arm-clearance")
     if goal_motion is not None:
-        check_goal_motion(goal_motion, exp, demos, avoided)
+        check_goal_motion(goal_motion, exp, avoided)
     if exp.placement.pose:   # a pose task's offset start is turned too: its reach, before any training
         for name in {*job.scenarios, *([job.side_by_side] if job.side_by_side else [])} & {"offset"}:
             try:
@@ -246,6 +246,8 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
             if name not in fields:
                 train(name)
     for name, f in list(fields.items()):
+        if job.goal is not None:   # the learned motion, toward the job's goal
+            f = fields[name] = f.toward(np.asarray(job.goal, dtype=np.float64))
         mismatch = space_mismatch(f, exp.placement.chart)
         if mismatch is not None:
             raise ConfigError(f"the {name} model does not fit the demos {demos.name}: {mismatch}")
@@ -294,5 +296,6 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
                              obstacle_steps_in_contact=contacts.steps_in_contact,
                              obstacle_min_clearance_m=contacts.min_clearance_m)
     report = files.write(exp, results, side, grid, fields, models, t_sim, progress,
-                         settings={"seed": job.seed, "goal_motion": describe_goal_motion(job)})
+                         settings={"seed": job.seed, "goal_motion": describe_goal_motion(job),
+                                   "goal": None if job.goal is None else list(job.goal)})
     return JobReport(results, side, grid, models, files.out, files.json_path, files.n_videos, report)

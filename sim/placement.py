@@ -8,7 +8,7 @@ and back by x = A^T (p - o) / s (exact on the task plane; the normal component i
 A task velocity v maps to the world velocity s A v. For d = 2 the plane normal is n = R[:, 2].
 
 Default plane for a 2-D path on the Panda: horizontal, through the tool point at ``q_home``
-(tool pointing down, held constant); the measured tracking on either plane is in reports/arm.md.
+(tool pointing down, held constant).
 
 A pose task (a field on poses, ``lfd.pose``) has d = 6: x = (position, l log(R_g^T R)), the chart
 point of Eq. (P1) at the field's ``PoseChart``. Its positions map as above (A = R, 3 x 3) and its

@@ -277,7 +277,7 @@ def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], width: in
     appears atomically (temporary file, then rename). Returns the number of frames written.
 
     x264's ``ultrafast`` preset at CRF 23: faster than ``veryfast`` for files a few times larger,
-    because the encoder shares the CPU cores with llvmpipe (scripts/speed_render.py measures both)."""
+    because the encoder shares the CPU cores with llvmpipe."""
     import imageio_ffmpeg
     import mediapy
 

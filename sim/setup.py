@@ -20,9 +20,9 @@ import numpy as np
 from lfd.demos import DemoSet
 from lfd.errors import ConfigError
 from lfd.obstacles import Obstacle
-from lfd.pose import PoseChart, chart_demos
+from lfd.pose import UNIT_TOLERANCE, PoseChart, chart_demos
 from robots import Kinematics, RobotModel
-from sim.errors import SimError
+from sim.errors import PlacementError, SimError
 from sim.obstacles import with_obstacles
 from sim.placement import Placement
 
@@ -73,7 +73,7 @@ class RunSetup:
                 plane: str = "auto", size_m: float | None = None, origin: Sequence[float] | None = None,
                 scale: float | None = None, shift: Sequence[float] | None = None, recorded: bool = False,
                 demo_index: int = 0, obstacles: Sequence[Obstacle] = (), time_factor: float = 1.0,
-                settle_s: float = SETTLE_S) -> RunSetup:
+                settle_s: float = SETTLE_S, goal: Sequence[float] | np.ndarray | None = None) -> RunSetup:
         """Resolve a run's setup (module docstring) and check that the arm reaches the demos.
 
         Parameters
@@ -102,6 +102,11 @@ class RunSetup:
             The run lasts this many times the demo's duration, then ``settle_s``; in [1, 100].
         settle_s : float
             Run time after that, s.
+        goal : array, optional
+            Run toward this goal instead of the demos' mean end, in the demos' frame: shape (d,) task
+            units for positions; for poses the position (3,) or the pose (7,) x, y, z, qw, qx, qy, qz
+            (metres, the robot's base frame): the task's chart is then the one at the goal orientation
+            (Eq. (P1)), as the fields' run toward it (``Field.toward``). Checked reachable.
 
         Raises
         ------
@@ -111,11 +116,15 @@ class RunSetup:
         if not (isinstance(time_factor, (int, float)) and math.isfinite(time_factor) and 1.0 <= time_factor <= 100.0):
             raise SimError(f"time_factor must be in [1, 100], got {time_factor!r}")
         chart = None
+        goal_v = None if goal is None else np.asarray(goal, dtype=np.float64).reshape(-1)
         if demos.has_orientation:   # poses run as chart points (lfd.pose)
             chart = placement.chart if placement is not None and placement.chart is not None else PoseChart.of(demos)
+            if goal_v is not None and goal_v.shape == (7,):   # the chart at the goal's orientation
+                chart = PoseChart.at(_unit_quaternion(goal_v[3:]), chart.length)
             task_demos = chart_demos(demos, chart)
         else:
             task_demos = demos
+        goal_task = task_demos.goal.copy() if goal_v is None else _goal_point(goal_v, task_demos, chart)
         if placement is None:
             placement = _placement(robot, task_demos, chart, plane, size_m, origin, scale, shift, recorded)
         if (placement.chart is None) != (chart is None):
@@ -129,11 +138,16 @@ class RunSetup:
             kin.update(robot.q_home)
             rotation_ref = kin.ee_rotation().copy()
         placement.check_reachable(robot, task_demos.x, rotation=rotation_ref)
+        if goal_v is not None:
+            try:
+                placement.check_reachable(robot, goal_task[None], rotation=rotation_ref)
+            except PlacementError as e:
+                raise PlacementError(f"the goal is out of the arm's reach: {e}") from None
         if not 0 <= demo_index < demos.n_demos:
             raise SimError(f"demo index {demo_index} out of range: {demos.name} has {demos.n_demos} demos")
         t = task_demos.t[demo_index]
         return cls(robot, demos, task_demos, placement, rotation_ref, int(demo_index),
-                   task_demos.x[demo_index, 0].copy(), task_demos.goal.copy(),
+                   task_demos.x[demo_index, 0].copy(), goal_task,
                    float(time_factor) * float(t[-1] - t[0]) + float(settle_s), tuple(obstacles))
 
     def moved(self, start: np.ndarray | None = None, goal: np.ndarray | None = None,
@@ -182,6 +196,32 @@ class RunSetup:
     def demo_rotations(self) -> np.ndarray | None:
         """A pose task's demo orientations in world, shape (T, 3, 3); None for positions."""
         return self.placement.rotation_to_world(self.task_demos.x[self.demo_index]) if self.pose else None
+
+
+def _unit_quaternion(q: np.ndarray) -> np.ndarray:
+    """q, shape (4,), (w, x, y, z), normalised; ``ConfigError`` unless it is a rotation."""
+    norm = float(np.linalg.norm(q))
+    if not (np.isfinite(q).all() and abs(norm - 1.0) <= UNIT_TOLERANCE):
+        raise ConfigError(f"the goal's quaternion (w, x, y, z) must have norm 1, got {np.round(q, 4).tolist()}")
+    return q / norm
+
+
+def _goal_point(goal: np.ndarray, task_demos: DemoSet, chart: PoseChart | None) -> np.ndarray:
+    """The task point, shape (d,), of a goal given in the demos' frame (``RunSetup.resolve``)."""
+    if not np.isfinite(goal).all():
+        raise ConfigError(f"the goal must be finite, got {goal.tolist()}")
+    if chart is None:
+        if goal.shape != (task_demos.dim,):
+            raise ConfigError(f"the goal must have {task_demos.dim} coordinates for {task_demos.dim}-D demos, "
+                              f"got {goal.shape[0]}")
+        return goal.copy()
+    if goal.shape not in ((3,), (7,)):
+        raise ConfigError(f"a pose goal is X,Y,Z or X,Y,Z,QW,QX,QY,QZ, got {goal.shape[0]} values")
+    point = task_demos.goal.copy()   # the demos' goal orientation in the chart (0 at the chart's own)
+    point[:3] = goal[:3]
+    if goal.shape == (7,):
+        point[3:] = 0.0
+    return point
 
 
 def _placement(robot: RobotModel, task_demos: DemoSet, chart: PoseChart | None, plane: str, size_m: float | None,

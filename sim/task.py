@@ -150,6 +150,7 @@ class FieldTrackingTask(control.Task):
         self._rng = np.random.default_rng(seed)
         self.field = field
         self._runner: Runner | None = None
+        self._next_goal: np.ndarray | None = None
         self._shift = self.schedule.goal_offset_task.copy()
         self.rotation_ref = setup.rotation_ref
         q0, err, rot_err = self._start_joints(self.start_task)
@@ -221,7 +222,24 @@ class FieldTrackingTask(control.Task):
                              f"task units of {np.round(self._start_nominal, 3).tolist()}")
 
     # ---------------------------------------------------------------- dm_control Task API
+    def set_goal(self, goal: np.ndarray) -> None:
+        """Run toward ``goal``, shape (d,), task units, from the next episode on: the ``goal``
+        observation, the reward, and the field of ``field_velocity`` (``Field.toward``). Position
+        tasks only (a pose task's chart is its goal's: set it when the environment is made)."""
+        if self.placement.pose:
+            raise SimError("a pose task's goal sets its chart: give it to sim.make_environment(goal=...)")
+        g = np.asarray(goal, dtype=np.float64).reshape(-1)
+        if g.shape != (self.placement.dim,) or not np.isfinite(g).all():
+            raise SimError(f"the goal must be {self.placement.dim} finite task coordinates, got {g.tolist()}")
+        self._next_goal = g.copy()
+
     def initialize_episode(self, physics: ArmPhysics) -> None:
+        if self._next_goal is not None:
+            goal, self._next_goal = self._next_goal, None
+            self.goal_task = goal + self.schedule.goal_offset_task
+            self.goal_world = self.placement.to_world(self.goal_task)
+            if self.field is not None:
+                self.field = self.field.toward(goal)
         if self.start_radius > 0:
             self._draw_start()
         data = physics.data.ptr

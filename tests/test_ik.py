@@ -14,8 +14,8 @@ from robots import (
     RobotError,
     RobotModel,
     load_robot,
-    solve_position_ik,
 )
+from robots.ik import solve_position_ik
 
 DT = 0.002
 MARGIN = 0.02  # default limit_margin of both backends

@@ -1,26 +1,17 @@
 """An honest contraction certificate: analytic bounds where the model has them, a dense check of
 Eq. (C1) everywhere, and a verdict that is never stronger than what was shown.
 
-For a field dx/dt = f(x) (the paper's Eq. (15)), with d(dx)/dt = J_f dx (its Eq. (16)), and a metric
-M(x), the contraction condition with rate lambda (the paper's Eq. (17), Eq. (C1) with dM/dt) is
-
-    Eq. (C1): Q(x) = J_f' M + M J_f + dM/dt <= -2 lambda M,   i.e.
-    Eq. (K1): g(x) = max eig(L^-1 Q L^-T) <= -2 lambda,   M = L L' (Cholesky),
-
-checked on a grid (above 3 dimensions, where a grid cannot be dense: the box's corners and seeded
-uniform samples) with J_f and dM/dt from forward-mode autodiff in float64 (nothing is
-finite-differenced), up to the round-off slack of computing Q,
-
-    Eq. (K2): slack(x) = SAFETY eps (2 |J_f| |M| + |dM/dt|) / lambda_min(M)   (Frobenius norms).
-
-A field with a metric (``metric_normalized_torch``) is checked in it with its own rate, any other
-(the NODE) in the identity metric with ``IDENTITY_RATE`` or the requested rate. ``certified`` is
-claimed only where it is proven: for a field whose analytic bounds make Eq. (C1) hold on all of R^d
-when they are finite and the grid confirms them; for any other field only when a bound between the
-grid points (from ``jacobian_lipschitz_bound``) closes the gaps ("not proven" where it is too loose,
-"not certified" where a grid point fails). Starts on the box are rolled out, and the grid covers
-where they go. Any NaN or inf means not certified. The reasoning in full: docs/equations.md,
-Eqs. (K1)-(K2).
+For a field dx/dt = f(x) (the paper's Eq. (15)) and a metric M(x), the contraction condition with
+rate lambda (the paper's Eq. (17), Eq. (C1) with dM/dt) is checked on a grid (above 3 dimensions:
+the box's corners and seeded uniform samples) as the largest generalised eigenvalue g(x) of
+(J_f' M + M J_f + dM/dt, M), Eq. (K1), against -2 lambda up to the round-off slack of Eq. (K2), with
+J_f and dM/dt from forward-mode autodiff in float64. A field built with a metric
+(``contraction_metric``) is checked in it with its own rate, any other (the NODE) in the identity
+metric. ``certified`` is claimed only where it is proven: analytic bounds that make Eq. (C1) hold
+on all of R^d, confirmed by the grid; or a bound between the grid points (``jacobian_lipschitz_bound``)
+that closes the gaps ("not proven" where it is too loose, "not certified" where a grid point
+fails, a trajectory from the box diverges or anything is NaN or inf). A field with a phase is
+certified by its own stated property. The reasoning in full: docs/equations.md, Eqs. (K1)-(K2).
 
 References
 ----------
@@ -34,7 +25,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, cast
 
 import numpy as np
@@ -42,7 +33,8 @@ import torch
 from torch.func import jvp
 
 from lfd.errors import ConfigError
-from lfd.field import VelocityField
+from lfd.field import FieldKind, StateSpace, VelocityField, by_kind
+from lfd.pose_contraction import PAIRS, check_pose_contraction
 from lfd.threads import torch_threads
 
 DEFAULT_SAMPLES = 20_000
@@ -214,7 +206,7 @@ def generalized_eigenvalues(field: VelocityField, xn: torch.Tensor
     f = module(xn)
     jf = torch.stack([jvp(module, (xn,), (eye[k].expand_as(xn),))[1] for k in range(d)], dim=-1)  # (B, d, d)
     jf_norm = torch.linalg.matrix_norm(jf)
-    metric_fn: Callable[[torch.Tensor], torch.Tensor] | None = getattr(field, "metric_normalized_torch", None)
+    metric_fn: Callable[[torch.Tensor], torch.Tensor] | None = field.contraction_metric()
     if metric_fn is None:
         q = jf + jf.transpose(1, 2)
         bad = ~torch.isfinite(q).flatten(1).all(1) | ~torch.isfinite(f).all(1)
@@ -241,13 +233,14 @@ def generalized_eigenvalues(field: VelocityField, xn: torch.Tensor
 
 
 def _analytic(field: VelocityField) -> dict[str, float] | None:
-    """The structural constants of a field that has them, or None (any non-finite value: None)."""
-    names = ("metric_bounds", "condition_bound", "lipschitz_bound")
-    if not all(n in dir(type(field)) for n in names):
-        return None
+    """The structural constants of a field that states them (``metric_bounds``, ``lipschitz_bound``),
+    or None (any non-finite value: None)."""
     try:
-        a, b = (float(v) for v in field.metric_bounds)  # type: ignore[attr-defined]
-        kappa, lip = float(field.condition_bound), float(field.lipschitz_bound)  # type: ignore[attr-defined]
+        bounds, lip_bound = field.metric_bounds, field.lipschitz_bound
+        if bounds is None or lip_bound is None:
+            return None
+        a, b = (float(v) for v in bounds)
+        kappa, lip = b / a, float(lip_bound)
     except (ValueError, RuntimeError, FloatingPointError, ZeroDivisionError):
         return None
     vals = (a, b, kappa, lip)
@@ -311,7 +304,7 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
         raise ConfigError(f"samples must be an integer from {min_samples(d)}{per} "
                           f"to {MAX_SAMPLES}, got {samples!r}")
     if rate is None:
-        rate = float(getattr(field, "rate", IDENTITY_RATE))
+        rate = IDENTITY_RATE if field.rate is None else float(field.rate)
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 0 < rate <= 1e6):
         raise ConfigError(f"rate must be a positive number up to 1e6 (1/s), got {rate!r}")
     if not (math.isfinite(tolerance) and tolerance >= 0):
@@ -319,13 +312,9 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
 
     with warnings.catch_warnings():     # torch.func's first use warns that torch.jit.script is deprecated
         warnings.simplefilter("ignore", DeprecationWarning)
-        cert = _certify(field, lo, hi, samples, float(rate), tolerance)
-    if field.chart is None:
+        cert = by_kind(field, _CERTIFIERS)(field, lo, hi, samples, float(rate), tolerance)
+    if field.space is StateSpace.POSITION:
         return cert
-    from dataclasses import replace
-
-    from lfd.pose_contraction import PAIRS, check_pose_contraction
-
     pose = check_pose_contraction(field, PAIRS if pose_pairs is None else int(pose_pairs))
     if pose["checked"] and not pose["holds"] and cert.certified:
         return replace(cert, pose=pose, verdict="not certified", certified=False,
@@ -335,11 +324,9 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
 
 def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int, rate: float,
              tolerance: float) -> Certificate:
-    """``certify`` after its arguments were checked."""
+    """``certify`` of an autonomous field after its arguments were checked."""
     d = field.dim
     t0 = time.perf_counter()
-    if hasattr(field, "contraction_property"):          # a phase-carrying field (``lfd.learners.tracking``)
-        return _phase_certificate(field, lo, hi, samples, tolerance, t0)
     with torch_threads(1):  # small per-point matrices: one thread is as fast and immune to oversubscription
         n_starts, n_left, clo, chi, traj_finite = escaping_starts(field, lo, hi, rate)
         pts = grid(clo, chi, samples)
@@ -348,7 +335,7 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
             xn_all = torch.tensor(field.norm.to_norm(pts))
         bound = -2.0 * rate
         worst, where, invalid, slack_max, excess, a, b = _scan(field, xn_all, bound, tolerance)
-    has_metric = hasattr(field, "metric_normalized_torch")
+    has_metric = field.contraction_metric() is not None
     s2 = field.norm.scale ** 2 if has_metric else 1.0
     analytic = _analytic(field) if has_metric else None
     cell_radius = float(0.5 * np.linalg.norm((chi - clo) / (per_axis - 1))) if per_axis else math.inf
@@ -365,8 +352,8 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
         verdict, proof = "certified", ("structural: Eq. (C1) holds identically on all of R^d with the analytic "
                                        "metric bounds below; the grid confirms the implementation")
     else:
-        jl = getattr(field, "jacobian_lipschitz_bound", None)
-        cell_lip = float(jl()) if callable(jl) else None
+        jl = field.jacobian_lipschitz_bound()
+        cell_lip = None if jl is None else float(jl)
         if cell_lip is not None and math.isfinite(cell_lip) and not has_metric and per_axis:
             worst_box = worst + 2.0 * cell_lip * cell_radius
             if worst_box <= bound + tolerance:
@@ -420,13 +407,15 @@ def _scan(field: VelocityField, xn_all: torch.Tensor, bound: float,
     return worst, where, invalid, slack_max, excess, a, b
 
 
-def _phase_certificate(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
-                       tolerance: float, t0: float) -> Certificate:
+def _phase_certificate(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int, rate: float,
+                       tolerance: float) -> Certificate:
     """The tracking learner's stated property (``lfd.learners.tracking.check_tracking_contraction``):
     for any phase signal the x-subsystem contracts at rate K in the Euclidean metric (a = b = 1), and
-    the tracking error decays like e^(-K t) from starts in the box."""
+    the tracking error decays like e^(-K t) from starts in the box (at the field's own rate K: the
+    ``rate`` asked for is not used)."""
     from lfd.learners.tracking import check_tracking_contraction
 
+    t0 = time.perf_counter()
     r = check_tracking_contraction(field, lo, hi, n_points=samples)  # type: ignore[arg-type]
     rate = float(r["rate"])
     worst = 2.0 * float(r["worst_eig"])                 # g = max eig(J + J') in M = I
@@ -447,3 +436,9 @@ def _phase_certificate(field: VelocityField, lo: np.ndarray, hi: np.ndarray, sam
         per_axis=0, n_invalid=0 if finite else 1, n_starts=int(r["n_starts"]), n_left_box=0,
         box=[lo.tolist(), hi.tolist()], checked_box=[list(v) for v in r["box"]],
         elapsed_s=time.perf_counter() - t0)
+
+
+#: how ``certify`` checks a field of each kind: Eq. (C1) on a grid, or the phase-carrying field's
+#: property (a time-varying field states nothing to certify)
+_CERTIFIERS: dict[FieldKind, Callable[..., Certificate]] = {FieldKind.AUTONOMOUS: _certify,
+                                                            FieldKind.PHASED: _phase_certificate}

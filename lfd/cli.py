@@ -77,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # imported with interrupts deferred before a command runs (lfd.interrupts.DeferredInterrupts)
-PRELOAD = ("torch", "numpy", "scipy.signal", "torchdiffeq", "lfd.demos", "lfd.field", "lfd.learners")
+PRELOAD = ("torch", "numpy", "torchdiffeq", "lfd.demos", "lfd.field", "lfd.learners")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -61,20 +61,20 @@ def reproduce(field: VelocityField, demos: DemoSet, method: str = "rk4") -> np.n
 
     y_i = rollout(x_i[0], t_i), shape (T, d), for each demo i. Demos that share a time grid
     (t_i - t_i[0] equal) are integrated in one batch by ``field.rollout``. Demos on different
-    uniform grids t_i[k] = t_i[0] + k h_i (LASA) are batched too when the field keeps the base
-    ``VelocityField.rollout`` and a one-step fixed-step method (``lfd.integrate.rollout_sample_units``).
+    uniform grids t_i[k] = t_i[0] + k h_i (LASA) are batched too for an autonomous field (whose
+    rollout is Eq. (5) through ``lfd.integrate``; a phased or time-varying one carries its phase or
+    time as well) and a one-step fixed-step method (``lfd.integrate.rollout_sample_units``).
     Returns shape (N, T, d); a diverging rollout holds inf/nan.
     """
-    from lfd.field import VelocityField as Base
+    from lfd.field import FieldKind, by_kind  # imports torch and pinocchio
 
     rel = demos.t - demos.t[:, :1]
     h = rel[:, 1:2]
     k = np.arange(demos.n_samples)
     uniform = np.allclose(rel, h * k, rtol=0.0, atol=1e-9 * float(rel.max()))
-    base_rollout = (type(field).rollout is Base.rollout
-                    and type(field).rollout_torch is Base.rollout_torch)
     solver = integrate.check_method(method)
-    if uniform and not solver.adaptive and solver.one_step and base_rollout:
+    own_grids = by_kind(field, {FieldKind.AUTONOMOUS: True, FieldKind.PHASED: False, FieldKind.TIME_VARYING: False})
+    if uniform and not solver.adaptive and solver.one_step and own_grids:
         return integrate.rollout_sample_units(field, demos.x[:, 0], h, demos.n_samples, method)
     out = np.empty_like(demos.x)
     todo = list(range(demos.n_demos))

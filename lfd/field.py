@@ -37,6 +37,7 @@ from torch import Tensor
 
 from lfd import integrate
 from lfd.errors import ConfigError
+from lfd.guarantees import Guarantees
 from lfd.normalization import Normalization
 from lfd.pose import PoseChart
 from lfd.runner import (
@@ -218,7 +219,7 @@ def cached_single_point_evaluator(field: Any) -> Callable[..., np.ndarray]:
     return fn
 
 
-class VelocityField:
+class VelocityField(Guarantees):
     """A learned autonomous velocity field x -> dx/dt (``FieldKind.AUTONOMOUS`` on positions).
 
     Parameters
@@ -441,36 +442,6 @@ class VelocityField:
                 return module(torch.from_numpy(xn).reshape(1, -1))[0].numpy()
 
         return f
-
-    # ---- what the field states about its own contraction (``lfd.certify``): nothing, unless its learner does
-    @property
-    def rate(self) -> float | None:
-        """The contraction rate the field is built with, 1/s; None: none (``ContractingField`` has one)."""
-        return None
-
-    @property
-    def metric_bounds(self) -> tuple[float, float] | None:
-        """(a, b) with a I <= M(x) <= b I for every x in R^d, user units; None: no metric stated."""
-        return None
-
-    @property
-    def lipschitz_bound(self) -> float | None:
-        """An upper bound of the field's Lipschitz constant in x, 1/s; None: none stated."""
-        return None
-
-    def contraction_metric(self) -> Callable[[Tensor], Tensor] | None:
-        """M_n: x_n (B, d) -> (B, d, d), the metric the field is built to contract in (normalised units,
-        differentiable; ``lfd.certify`` checks Eq. (C1) in it); None: none (the identity is checked)."""
-        return None
-
-    def jacobian_lipschitz_bound(self) -> float | None:
-        """An upper bound of Lip(J_f) from the weights; None: none known."""
-        return None
-
-    def closed_form_rollout(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray | None:
-        """The exact flow from x0, shape (B, d), over t, shape (T,): (B, T, d) where the learner has it
-        in closed form; None: integrate instead (``rollout``)."""
-        return None
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the model file atomically (see ``lfd.modelfile``)."""

@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from lfd.errors import ConfigError
-from lfd.field import FieldWrapper
+from lfd.field import FieldKind, FieldWrapper, require_kind
+from lfd.obstacles import AvoidingField, avoid
 
 __all__ = ["MovingGoalField", "shift_goal", "follow_goal_path", "parse_goal_shift", "load_goal_path"]
 
@@ -51,7 +52,8 @@ class MovingGoalField(FieldWrapper):
     Parameters
     ----------
     field : VelocityField
-        The nominal autonomous field f(x) [units/s] with goal g0, shape (d,).
+        The nominal autonomous field f(x) [units/s] with goal g0, shape (d,); a field of another
+        kind is refused (``ConfigError``): a phase or a time of its own would not follow the shift.
     shift : callable t -> (delta, delta_dot)
         The goal displacement [units] and its rate [units/s] at time t [s], arrays of shape (d,).
     samples : array, shape (k, d)
@@ -60,6 +62,7 @@ class MovingGoalField(FieldWrapper):
 
     def __init__(self, field: Any, shift: Callable[[float], tuple[np.ndarray, np.ndarray]],
                  samples: np.ndarray) -> None:
+        require_kind(field, (FieldKind.AUTONOMOUS,), "a moving goal (--goal-shift, --goal-path)")
         self.field = field
         self.shift = shift
         self._samples = np.atleast_2d(np.asarray(samples, dtype=np.float64))
@@ -100,14 +103,10 @@ class MovingGoalField(FieldWrapper):
 
     def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1) -> np.ndarray:
         """RK4 from x0, shape (B, d) or (d,), over t, shape (T,): returns (B, T, d) (or (T, d))."""
-        from lfd.obstacles import AvoidingField
-
         return AvoidingField(self, []).rollout(x0, t, method, substeps)
 
     def avoiding(self, obstacles: Sequence[Any], **kw: Any) -> Any:
         """This field modulated to avoid ``obstacles`` (see ``lfd.obstacles.AvoidingField``)."""
-        from lfd.obstacles import avoid
-
         return avoid(self, obstacles, **kw)
 
     def __repr__(self) -> str:

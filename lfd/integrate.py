@@ -16,9 +16,8 @@ Every rollout of the package goes through this module:
 A field whose flow has a closed form (``ContractionField.closed_form_rollout``, the paper's
 Eq. (5) solved exactly through Eq. (C4)) is the one special case that needs no solver.
 
-The solvers discretise the paper's Eq. (5), x(t_1) = ODESolve(f, x(t_0), t_0, t_1). Note that
-torchdiffeq's ``rk4`` is the 3/8-rule variant of fourth-order Runge-Kutta, while ``rk4`` here
-is the classic scheme of the paper's Eq. (8); both are of order 4 and agree to O(h^5) per step.
+The solvers discretise the paper's Eq. (5); torchdiffeq's ``rk4`` is the 3/8-rule variant, ``rk4``
+here the classic scheme of the paper's Eq. (8) (both of order 4).
 
 References
 ----------

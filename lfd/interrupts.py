@@ -204,14 +204,11 @@ def run_script(path: str, module: str | None = None) -> NoReturn:
     Parameters
     ----------
     path : str
-        The script's file (its ``__file__``); its folder is put on ``sys.path``.
+        The script's file (its ``__file__``); Python puts its folder first on the import path.
     module : str, optional
         The module whose ``main()`` runs, if not the script's own.
     """
-    folder, name = os.path.split(os.path.abspath(path))
-    name = os.path.splitext(name)[0]
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
+    name = os.path.splitext(os.path.basename(path))[0]
 
     def load() -> Callable[[Sequence[str] | None], int]:
         program = importlib.import_module(module or name)

@@ -7,6 +7,7 @@ demos and draws into an Axes (or returns a Figure), so scripts can reuse any pie
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -116,9 +117,7 @@ def curriculum_stages(history: dict[str, Any], config: dict[str, Any] | None) ->
     for a learner without a curriculum (no ``seg``/``seg_start`` in ``config``) or a constant S."""
     if not config or "seg" not in config or "seg_start" not in config:
         return []
-    from types import SimpleNamespace
-
-    from lfd.learners.node import segment_length
+    from lfd.learners.node import segment_length  # imports scipy
 
     n = len(history.get("loss") or [])
     cfg = SimpleNamespace(curriculum=float(config.get("curriculum", 0.0)), iterations=int(config.get("iterations", n)),
@@ -178,7 +177,7 @@ def field_figure(field: VelocityField, demos: DemoSet, n_perturbed: int = 8, spr
         ax = fig.add_subplot(gs[0, 0], projection="3d")
         draw_paths_3d(ax, field, demos, n_perturbed, spread, seed)
     ax.set_title(title or f"{field.learner} field on {demos.name}", fontsize=11)
-    draw_loss(fig.add_subplot(gs[0, 1]), field.history, getattr(field, "config", None))
+    draw_loss(fig.add_subplot(gs[0, 1]), field.history, field.config)
     return fig
 
 

@@ -21,80 +21,30 @@ SO(3) has a globally attracting equilibrium.
 
 Quaternions are (w, x, y, z), scalar first, as in the data sets; a quaternion and its negative are
 the same orientation (the double cover S^3 -> SO(3)). The maps use Pinocchio's ``log3``, ``exp3`` and
-``Jexp3``; conversions between quaternions and matrices use SciPy's ``Rotation``.
+``Jexp3``; conversions, the mean and the geodesic angle are ``lfd.rotations``' (re-exported here).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
-from scipy.spatial.transform import Rotation
 
-if TYPE_CHECKING:
-    from lfd.demos import DemoSet
+from lfd.demos.demoset import DemoSet
+from lfd.rotations import (
+    ROTATION_LENGTH,
+    UNIT_TOLERANCE,
+    continuous,
+    geodesic_angle,
+    matrix_quaternions,
+    mean_quaternion,
+    quaternion_matrices,
+)
 
-#: metres of chart per radian of turn (Eq. (P1)): one degree weighs as much as 1.75 mm
-ROTATION_LENGTH = 0.1
-#: a quaternion whose norm is further than this from 1 is not a rotation (a near one is renormalised)
-UNIT_TOLERANCE = 0.01
-
-
-def quaternion_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices of unit quaternions (w, x, y, z): q of shape (..., 4) -> shape (..., 3, 3)."""
-    q = np.asarray(q, dtype=np.float64)
-    flat = q.reshape(-1, 4)
-    if not len(flat):
-        return np.zeros(q.shape[:-1] + (3, 3))
-    return Rotation.from_quat(flat, scalar_first=True).as_matrix().reshape(q.shape[:-1] + (3, 3))
-
-
-def matrix_quaternions(rot: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w, x, y, z) with w >= 0 of rotation matrices: (..., 3, 3) -> (..., 4)."""
-    rot = np.asarray(rot, dtype=np.float64)
-    flat = rot.reshape(-1, 3, 3)
-    if not len(flat):
-        return np.zeros(rot.shape[:-2] + (4,))
-    out = Rotation.from_matrix(flat).as_quat(canonical=True, scalar_first=True)
-    return out.reshape(rot.shape[:-2] + (4,))
-
-
-def continuous(q: np.ndarray) -> np.ndarray:
-    """q, shape (T, 4), with signs flipped so that consecutive quaternions have q_k . q_(k-1) >= 0
-    (q and -q are one orientation: the sequence becomes continuous on S^3)."""
-    q = np.array(q, dtype=np.float64)
-    flips = np.cumsum(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0) % 2
-    q[1:][flips == 1] *= -1.0
-    return q
-
-
-def mean_quaternion(q: np.ndarray, iterations: int = 50) -> np.ndarray:
-    """The Karcher (geodesic) mean of unit quaternions, q of shape (K, 4): the rotation R_m with
-    sum_i log(R_m^T R_i) = 0, found by R_m <- R_m exp(mean_i log(R_m^T R_i)) from the chordal mean (the
-    eigenvector of sum q q^T with the largest eigenvalue); w >= 0; shape (4,). So the chart at the
-    mean (Eq. (P1)) puts the mean of the rotation coordinates at 0, to round-off."""
-    q = np.asarray(q, dtype=np.float64).reshape(-1, 4)
-    _, vecs = np.linalg.eigh(q.T @ q)
-    rm = quaternion_matrices(vecs[:, -1])
-    rots = quaternion_matrices(q)
-    for _ in range(iterations):
-        step = np.mean([pin.log3(rm.T @ r) for r in rots], axis=0)
-        rm = rm @ pin.exp3(step)
-        if float(np.linalg.norm(step)) < 1e-15:
-            break
-    return matrix_quaternions(rm)
-
-
-def geodesic_angle(r1: np.ndarray, r2: np.ndarray) -> np.ndarray:
-    """angle(R_1, R_2) = |log(R_1^T R_2)| [rad] of Eq. (P4): rotations of shape (..., 3, 3) -> shape (...)."""
-    rel = np.einsum("...ji,...jk->...ik", np.asarray(r1, dtype=np.float64), np.asarray(r2, dtype=np.float64))
-    c = np.clip(0.5 * (np.trace(rel, axis1=-2, axis2=-1) - 1.0), -1.0, 1.0)
-    s = 0.5 * np.linalg.norm(np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0],
-                                       rel[..., 1, 0] - rel[..., 0, 1]], axis=-1), axis=-1)
-    return np.arctan2(s, c)
+__all__ = ["ROTATION_LENGTH", "UNIT_TOLERANCE", "PoseChart", "chart_demos", "continuous", "geodesic_angle",
+           "matrix_quaternions", "mean_quaternion", "quaternion_matrices"]
 
 
 @dataclass(frozen=True)
@@ -202,11 +152,7 @@ class PoseChart:
 
 def chart_demos(demos: DemoSet, chart: PoseChart) -> DemoSet:
     """A pose set's demos as chart points of R^6, Eq. (P1): positions (N, T, 3) and quaternions
-    (N, T, 4) -> a position set of shape (N, T, 6), named after the poses."""
-    from lfd.demos import DemoSet
-
+    (N, T, 4) -> a position set of shape (N, T, 6), named after the poses, with their notes."""
     if demos.q is None:
         raise ValueError(f"{demos.name}: chart_demos needs a set of poses")
-    # the pose set checked its end poses (positions, and orientations by angle); the chart's rotation
-    # coordinates are radians times l, not the positions' units, so the end check is not repeated on them
-    return DemoSet(demos.t, chart.to_chart(demos.x, demos.q), name=demos.name, end_tolerance=math.inf)
+    return DemoSet(demos.t, chart.to_chart(demos.x, demos.q), name=demos.name, notes=demos.notes)

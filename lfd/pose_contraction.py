@@ -25,13 +25,13 @@ geodesic one; such pairs separate before they converge (the obstruction of ``lfd
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pinocchio as pin
 
-from lfd.field import VelocityField, is_phased
-from lfd.pose import geodesic_angle
+from lfd.field import StateSpace, VelocityField
+from lfd.pose import PoseChart, geodesic_angle
 
 PAIRS = 256                 # pairs of each kind (near, far)
 HORIZON_RATES = 5.0         # follow pairs for 5 / rate seconds ...
@@ -56,8 +56,9 @@ def check_pose_contraction(field: VelocityField, n_pairs: int = PAIRS, seed: int
     Parameters
     ----------
     field : VelocityField
-        A pose field (``field.chart`` set): the goal-contraction learner's is checked against its
-        ``rate`` and overshoot sqrt(b/a); any other is followed and reported, not checked.
+        A pose field (``StateSpace.POSE``): one built with a metric (``contraction_metric``, the
+        goal-contraction learner's) is checked against its ``rate`` and overshoot sqrt(b/a) of its
+        ``metric_bounds``; any other is followed and reported, not checked.
     n_pairs : int
         Pairs of each kind: near (the second pose 1 cm and 0.05 rad from the first) and far
         (independent).
@@ -75,18 +76,20 @@ def check_pose_contraction(field: VelocityField, n_pairs: int = PAIRS, seed: int
         (the largest growth of the geodesic angle between pairs straddling the cut locus), ``n_pairs``,
         ``horizon_s``, ``max_start_angle_deg``, ``rotation_length_m_per_rad`` (l).
     """
-    chart = field.chart
-    if chart is None or field.demo_box is None:
+    if field.space is not StateSpace.POSE or field.demo_box is None:
         raise ValueError("check_pose_contraction needs a pose field that stores its demo box")
+    chart = cast(PoseChart, field.chart)
     rng = np.random.default_rng(seed)
     lo, hi = field.demo_box
     pad = (hi[:3] - lo[:3]) * 0.25
     plo, phi = lo[:3] - pad, hi[:3] + pad
-    rate = float(getattr(field, "rate", 0.0))
-    overshoot = float(getattr(field, "condition_bound", 1.0)) ** 0.5
-    # the pair bound is the goal-contraction learner's; the tracking learner's (Eq. (T5)) is to its
-    # reference, checked by ``lfd.learners.tracking.check_tracking_contraction`` in the chart
-    checked = rate > 0 and hasattr(field, "metric_bounds") and not is_phased(field)
+    rate = 0.0 if field.rate is None else float(field.rate)
+    bounds = field.metric_bounds
+    overshoot = 1.0 if bounds is None else float(bounds[1] / bounds[0]) ** 0.5
+    # the pair bound is that of a field built with a metric (the goal-contraction learner's); the
+    # tracking learner's (Eq. (T5)) is to its reference, checked by
+    # ``lfd.learners.tracking.check_tracking_contraction`` in the chart
+    checked = rate > 0 and field.contraction_metric() is not None
     horizon = min(HORIZON_RATES / rate, MAX_HORIZON_S) if rate > 0 else MAX_HORIZON_S
     t = np.linspace(0.0, horizon, STEPS + 1)
     max_angle = math.pi - ANTIPODE_MARGIN
@@ -141,12 +144,9 @@ def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 def _rollout(field: VelocityField, z0: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Chart trajectories, shape (B, T, 6), from z0 (B, 6) over t (T,): the contraction field's exact
-    flow (its Eq. (C4), ``closed_form_rollout``) where it has one, else RK4 (with the phase for tracking)."""
+    """Chart trajectories, shape (B, T, 6), from z0 (B, 6) over t (T,): the field's exact flow where it
+    has one (the contraction field's Eq. (C4), ``closed_form_rollout``), else its RK4 ``rollout``
+    (with the phase for tracking)."""
     with np.errstate(all="ignore"):
-        if is_phased(field):
-            return field.rollout_with_phase(z0, t, method="rk4", substeps=1)[0]
-        exact = getattr(field, "closed_form_rollout", None)
-        if callable(exact):
-            return np.asarray(exact(z0, t))
-        return field.rollout(z0, t, method="rk4")
+        exact = field.closed_form_rollout(z0, t)
+        return field.rollout(z0, t, method="rk4") if exact is None else np.asarray(exact)

@@ -9,7 +9,7 @@ number.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 
@@ -37,17 +37,25 @@ def check_ints(obj: Any, bounds: Iterable[tuple[str, int, int | None]],
             raise error(f"{name} must be an integer {rule}, got {value!r}")
 
 
-def check_positive(obj: Any, names: Iterable[str], to_float: bool = False, allow_inf: bool = False) -> None:
-    """Each attribute of ``obj`` in ``names`` must be a finite number > 0 (ValueError), or +inf
-    with ``allow_inf``; with ``to_float`` it is stored back as a float."""
+def check_numbers(obj: Any, names: Iterable[str], rule: str, ok: Callable[[float], bool], to_float: bool = False,
+                  allow_inf: bool = False) -> None:
+    """Each attribute of ``obj`` in ``names`` must be a finite number (or +inf with ``allow_inf``) for
+    which ``ok`` holds, else ValueError ``name must be <rule>, got <value>``; with ``to_float`` it is
+    stored back as a float."""
     for name in names:
         value = getattr(obj, name)
         inf = allow_inf and isinstance(value, float) and value == math.inf
-        if not (inf or is_real(value)) or value <= 0:
-            raise ValueError(f"{name} must be a positive number{' (or inf)' if allow_inf else ''}, "
-                             f"got {value!r}")
+        if not (inf or is_real(value)) or not ok(value):
+            raise ValueError(f"{name} must be {rule}, got {value!r}")
         if to_float:
             setattr(obj, name, float(value))
+
+
+def check_positive(obj: Any, names: Iterable[str], to_float: bool = False, allow_inf: bool = False) -> None:
+    """Each attribute of ``obj`` in ``names`` must be a finite number > 0 (ValueError), or +inf
+    with ``allow_inf``; with ``to_float`` it is stored back as a float."""
+    check_numbers(obj, names, f"a positive number{' (or inf)' if allow_inf else ''}", lambda v: v > 0,
+                  to_float, allow_inf)
 
 
 def check_bools(obj: Any, names: Iterable[str]) -> None:

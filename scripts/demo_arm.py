@@ -8,12 +8,6 @@ folder out/demo_arm_YYYYmmdd-HHMMSS/ (see --help). The job is the library's
 (``sim.pipeline.run_job``); its flags are ``sim.cli``'s, also installed as ``lfd-demo-arm``.
 """
 
-from __future__ import annotations
-
-import os
-import sys
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
     from lfd.interrupts import run_script
 

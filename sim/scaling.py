@@ -1,5 +1,5 @@
 """Cost of the closed-loop control step against the number of obstacles and the robot
-(``scripts/scaling.py`` writes it into reports/scaling.md).
+(``sim.studies.scaling``, run by ``scripts/scaling.py``, writes it into reports/scaling.md).
 
 A measurement (``measure_control``) runs a field on a robot with K spheres in the scene, placed
 off the demonstrated path (``off_path_spheres``: on a grid on the far side of the demos from the
@@ -12,7 +12,7 @@ per point after one warm-up; each run's step times (``RunTrace.step_time_s``, th
 time (``RunTrace.cpu_s``) are kept, and after each run as many bare ``mujoco.mj_step`` calls of the
 same compiled model (obstacles included), at rest at the run's start with controls that hold it
 there, are timed one by one (interleaved blocks: machine load hits both alike, as in
-``scripts/speed_loop.py``); the field the loop calls (the avoiding field) is also timed alone. All
+``scripts/speed.py loop``); the field the loop calls (the avoiding field) is also timed alone. All
 points of a robot are measured round-robin (``measure_control``).
 """
 

@@ -27,6 +27,7 @@ from lfd.learners.node import (
     uniform_grid,
 )
 from lfd.learners.node_kernel import RK4Segments, tanh_as_sigmoid
+from lfd.learners.optim import Adam
 from lfd.normalization import Normalization
 
 # A short training: 300 iterations on the default spiral, 100 samples a demo, segments 2 -> 10.
@@ -190,10 +191,10 @@ def test_fused_rk4_segments_equal_torchdiffeq(activation: str, hidden: tuple[int
 def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.MonkeyPatch) -> None:
     stop_at = 12
     seen: list[dict[str, torch.Tensor]] = []
-    real_step = torch.optim.Adam.step
+    real_step = Adam.step
 
-    def step(self: torch.optim.Adam, *args: Any, **kwargs: Any) -> Any:
-        params = [p for g in self.param_groups for p in g["params"]]
+    def step(self: Adam, *args: Any, **kwargs: Any) -> Any:
+        params = self.params
         seen.append({str(i): p.detach().clone() for i, p in enumerate(params)})
         if len(seen) == stop_at + 1:
             with torch.no_grad():
@@ -202,7 +203,7 @@ def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.Monkey
             raise KeyboardInterrupt
         return real_step(self, *args, **kwargs)
 
-    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    monkeypatch.setattr(Adam, "step", step)
     f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iterations=100, seg_start=10, lr=3e-2))
     h = f.history
     assert h["interrupted"] is True
@@ -216,19 +217,18 @@ def test_ctrl_c_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.Monkey
 
 def test_divergence_stops_and_keeps_the_best_module(demos: DemoSet, monkeypatch: pytest.MonkeyPatch) -> None:
     calls = []
-    real_step = torch.optim.Adam.step
+    real_step = Adam.step
 
-    def step(self: torch.optim.Adam, *args: Any, **kwargs: Any) -> Any:
+    def step(self: Adam, *args: Any, **kwargs: Any) -> Any:
         calls.append(1)
         out = real_step(self, *args, **kwargs)
         if len(calls) == 8:
             with torch.no_grad():
-                for g in self.param_groups:
-                    for p in g["params"]:
-                        p.fill_(float("inf"))
+                for p in self.params:
+                    p.fill_(float("inf"))
         return out
 
-    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    monkeypatch.setattr(Adam, "step", step)
     with pytest.warns(RuntimeWarning, match="non-finite at iteration 8"):
         f = lfd.train("node", demos, seed=0, progress=False, **dict(QUICK, iterations=50, seg_start=10))
     h = f.history

@@ -249,7 +249,10 @@ def test_two_overlapping_obstacles_are_merged_and_never_entered() -> None:
     b = Box(a.center + np.array([0.08, 0.05]), [0.07, 0.05])
     f = avoid(field, [a, b])
     assert len(f.units) == 1 and np.all([o.gamma(f.units[0].reference) < 1 for o in (a, b)])
+    nested = avoid(avoid(field, [a]), [b])         # one modulation of both, not one inside another
+    assert type(nested) is AvoidingField and nested.field is field and len(nested.units) == 1
     starts = seeded_starts(f, demos)
+    np.testing.assert_allclose(nested(starts), f(starts), rtol=1e-12, atol=1e-12)
     t = np.linspace(0.0, 16.0, 321)
     y, _ = check_avoids_and_converges(f, starts, t, goal_tol=0.01)
     for o in (a, b):
@@ -477,6 +480,10 @@ def test_tracking_field_avoids_obstacles_and_its_phase_keeps_going() -> None:
     assert sdot == sdot0 and np.all(np.isfinite(v))
     with pytest.raises(ConfigError, match="static obstacles"):
         avoid(field, [Sphere([0.5, 0.5], 0.1, velocity=[0.1, 0.0])])
+    with pytest.raises(ConfigError, match="AvoidingField .*does not apply to the tracking learner's field"):
+        AvoidingField(field, [ob])
+    with pytest.raises(ConfigError, match="a moving goal .*does not apply to the tracking learner's field"):
+        shift_goal(field, 1.0, [0.1, 0.0])
 
 
 #: the Panda sweep's hand margin in the units of its 3-demo spiral (28.2 mm at 0.608 m per unit)

@@ -106,19 +106,24 @@ def test_pose_demo_validation_messages() -> None:
     got = DemoSet(t, x, q=flipped)
     assert np.array_equal(got.q, DemoSet(t, x, q=q).q)
     assert np.array_equal(continuous(flipped[0]), q[0])
-    turned = q.copy()
+    turned = q.copy()                                     # demo 1 ends turned far from demo 0: accepted
     turned[1, -1] = [0.0, 1.0, 0.0, 0.0] if abs(q[1, -1, 1]) < 0.7 else [1.0, 0.0, 0.0, 0.0]
-    with pytest.raises(DemoError, match=r"do not end near a common orientation"):
-        DemoSet(t, x, q=turned)
+    apart = DemoSet(t, x, q=turned)
+    assert apart.end_q is not None and np.array_equal(apart.end_q, apart.q[:, -1])
+    assert float(np.degrees(geodesic_angle(*quaternion_matrices(apart.end_q)))) > 90.0
+    assert np.allclose(apart.goal_q, mean_quaternion(apart.end_q), atol=1e-15)
 
 
-def test_pose_files_round_trip_bit_for_bit(tmp_path, small_pouring) -> None:
+def test_pose_files_round_trip_bit_for_bit(tmp_path) -> None:
+    """Pouring demos 0, 1 and 3 (which the clean-up of a recording leaves as they are) read back bit for bit."""
+    d = robottasks("pouring")
+    clean = DemoSet(d.t[[0, 1, 3], ::4], d.x[[0, 1, 3], ::4], name="pouring-clean", q=d.q[[0, 1, 3], ::4])
     for name in ("d.csv", "d.npz"):
-        save_file(small_pouring, tmp_path / name)
+        save_file(clean, tmp_path / name)
         back = load_file(tmp_path / name)
-        assert back.has_orientation
-        assert np.array_equal(back.t, small_pouring.t) and np.array_equal(back.x, small_pouring.x)
-        assert np.array_equal(back.q, small_pouring.q)
+        assert back.has_orientation and back.notes == ()
+        assert np.array_equal(back.t, clean.t) and np.array_equal(back.x, clean.x)
+        assert np.array_equal(back.q, clean.q)
     assert (tmp_path / "d.csv").read_text().splitlines()[0] == "demo,t,x,y,z,qw,qx,qy,qz"
     # demos of different lengths: positions linearly, orientations by slerp, on the longest length
     rows = (tmp_path / "d.csv").read_text().splitlines()
@@ -127,12 +132,28 @@ def test_pose_files_round_trip_bit_for_bit(tmp_path, small_pouring) -> None:
     short = [r for r in rows[1:] if not r.startswith("2,") or r in keep]
     (tmp_path / "u.csv").write_text("\n".join([rows[0], *short]) + "\n")
     u = load_file(tmp_path / "u.csv")
-    assert u.n_samples == small_pouring.n_samples and np.allclose(u.t[2], small_pouring.t[2], atol=1e-12)
-    ang = geodesic_angle(quaternion_matrices(u.q[2]), quaternion_matrices(small_pouring.q[2]))
+    assert u.notes == (f"{tmp_path / 'u.csv'}: demos resampled to 250 samples each, evenly in time (they had "
+                       "126 to 250, at 7.5 to 15 Hz)",)
+    assert u.n_samples == clean.n_samples and np.allclose(u.t[2], clean.t[2], atol=1e-12)
+    ang = geodesic_angle(quaternion_matrices(u.q[2]), quaternion_matrices(clean.q[2]))
     assert float(np.max(ang[0::2])) < 1e-7                                              # at the kept samples
     rot = quaternion_matrices(u.q[2])
     prev, mid, nxt = rot[0:-3:2], rot[1:-2:2], rot[2:-1:2]          # between kept samples: on their geodesic arc
     assert np.allclose(geodesic_angle(prev, mid) + geodesic_angle(mid, nxt), geodesic_angle(prev, nxt), atol=1e-9)
+
+
+def test_a_recorded_pour_read_from_a_file_is_trimmed(tmp_path, small_pouring) -> None:
+    """Pouring demo 2 stands still for its last 2.6 s (a real recording): read from a file, it is
+    trimmed to 0.1 s of that, and the three demos are resampled to one length; in memory nothing changes."""
+    save_file(small_pouring, tmp_path / "d.npz")
+    back = load_file(tmp_path / "d.npz")
+    name = tmp_path / "d.npz"
+    assert back.notes == (f"{name}: demo 2: trimmed 2.5 s standing still at the end (speed below 2% of its peak)",
+                          f"{name}: demos resampled to 250 samples each, evenly in time (they had 212 to 250)")
+    assert np.array_equal(back.x[:2], small_pouring.x[:2]) and np.array_equal(back.q[:2], small_pouring.q[:2])
+    assert float(back.t[2, -1]) == pytest.approx(float(small_pouring.t[2, -1]) - 2.53, abs=0.05)
+    np.testing.assert_allclose(back.x[2, -1], small_pouring.x[2, -1], atol=2e-3)      # it barely moved since
+    assert small_pouring.notes == ()
 
 
 def test_bad_pose_file_is_one_line_exit_2(tmp_path, small_pouring) -> None:

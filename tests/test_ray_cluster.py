@@ -189,8 +189,8 @@ def test_the_benchmark_on_the_cluster_gives_the_local_records_and_resumes(
     from lfd.cli import main
 
     def argv(name: str, *extra: str) -> list[str]:
-        return ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle,Sine", "--json",
-                str(tmp_path / name / "r.json"), "--report", str(tmp_path / name / "r.md"), *extra]
+        return ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle,Sine", "--split", "in-sample",
+                "--json", str(tmp_path / name / "r.json"), "--report", str(tmp_path / name / "r.md"), *extra]
 
     on_ray = ("--executor", "ray", "--address", cluster["address"], "--workers", "2")
     p = _driver(cluster["env"], "-m", "lfd.cli", *argv("ray", *on_ray), cwd=tmp_path)   # Ray reads the token at start

@@ -1,4 +1,5 @@
-"""The scaling curves' library parts (lfd.bench.scaling, sim.scaling) and scripts/scaling.py's options.
+"""The scaling curves' library parts (lfd.bench.scaling, sim.scaling) and the options of their report
+(``sim.studies.scaling``, scripts/scaling.py).
 
 Cheap: no learner is trained and nothing is timed (the measurement itself is replaced where a test
 needs one); the LASA shapes are read from the wheel's data.
@@ -6,12 +7,12 @@ needs one); the LASA shapes are read from the wheel's data.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from cli_runs import run_main
 
 import lfd
 from lfd.bench import scaling
@@ -25,11 +26,7 @@ from lfd.bench.scaling import (
     resample_demos,
     stacked_lasa,
 )
-
-SCRIPTS = str(Path(__file__).resolve().parents[1] / "scripts")
-if SCRIPTS not in sys.path:
-    sys.path.insert(0, SCRIPTS)
-
+from sim.studies import scaling as study
 
 # ---------------------------------------------------------------- stacking LASA shapes
 
@@ -171,21 +168,19 @@ def test_off_path_spheres_lie_beyond_the_demos_and_apart() -> None:
 
 # ---------------------------------------------------------------- the script's options
 
-@pytest.mark.parametrize("argv, text", [
-    (["--learners", "gmm"], "unknown learner(s) gmm"),
-    (["--repeats", "0"], "--repeats must be between 1 and 100"),
-    (["--iterations", "node=abc"], "not a positive integer"),
-    (["--iterations", "tracking=5"], "tracking learner has no iterations"),
-    (["--skip-learners", "--skip-control"], "leave nothing to do"),
-    (["--bogus"], "unrecognized arguments"),
-])
-def test_bad_options_give_one_line_and_exit_2(argv: list[str], text: str, capsys: pytest.CaptureFixture[str]) -> None:
-    import scaling as script
+#: what the one line says -> the options that make the report command say it
+BAD_OPTIONS: dict[str, list[str]] = {
+    "unknown learner(s) gmm": ["--learners", "gmm"],
+    "--repeats must be between 1 and 100": ["--repeats", "0"],
+    "not a positive integer": ["--iterations", "node=abc"],
+    "tracking learner has no iterations": ["--iterations", "tracking=5"],
+    "leave nothing to do": ["--skip-learners", "--skip-control"],
+    "unrecognized arguments": ["--bogus"],
+}
 
-    try:
-        code = script.main(argv)
-    except SystemExit as e:
-        code = e.code
-    err = capsys.readouterr().err
+
+@pytest.mark.parametrize("text, argv", BAD_OPTIONS.items())
+def test_bad_options_give_one_line_and_exit_2(text: str, argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run_main(study.main, argv, capsys)
     assert code == 2
-    assert err.count("\n") == 1 and err.startswith("scaling: error: ") and text in err
+    assert len(err.splitlines()) == 1 and err.startswith("scaling: error: ") and text in err

@@ -120,14 +120,10 @@ def test_demo_arm_obstacle_flag_reports_contacts_and_rejects_a_goal_inside(tmp_p
 def panda_goal_runs():
     """The Panda on the spiral with a sink field: unshifted, and with the goal moved by 20% of the
     demos' extent at t = 1 s (blended over 0.5 s)."""
-    import sys
-    from pathlib import Path
+    from known_fields import sink_field
 
     import sim
     from lfd.goal import shift_goal
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from known_fields import sink_field
 
     demos = lfd.spiral()
     field = sink_field(demos)
@@ -231,14 +227,10 @@ def test_moving_obstacle_moves_in_the_scene_and_is_avoided_on_the_panda() -> Non
     it (a mocap body), the avoiding field never lets the arm touch it, the bare field runs into it
     unless the whole-arm dampers hold the arm back, and a replay that froze the sphere at t = 0
     would count other contacts than those that happened."""
-    import sys
-    from pathlib import Path
+    from known_fields import sink_field
 
     import sim
     from lfd.obstacles import avoid
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from known_fields import sink_field
 
     demos = lfd.spiral()
     field = sink_field(demos)

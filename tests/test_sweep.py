@@ -1,4 +1,4 @@
-"""The robustness sweep of the arm (scripts/sweep_arm.py): one JSON record per run,
+"""The robustness sweep of the arm (``sim.studies.sweep``, scripts/sweep_arm.py): one JSON record per run,
 resume, summary and figures. Ray's records against the local pool's, bit for bit and with a killed
 worker, are in test_ray_cluster.py.
 
@@ -10,17 +10,13 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_runs import run_main
 
-SCRIPTS = str(Path(__file__).resolve().parents[1] / "scripts")
-if SCRIPTS not in sys.path:
-    sys.path.insert(0, SCRIPTS)
-
-import sweep_arm  # noqa: E402
+from sim.studies import sweep
 
 ARGS = ["--robots", "planar", "--directions", "2", "--forces", "20", "--offsets", "0.05", "--kinds", "push,offset",
         "--option", "node.iterations=30", "--option", "node.hidden=[16,16]", "--option", "contraction.iterations=10",
@@ -42,7 +38,7 @@ def models(tmp_path_factory: pytest.TempPathFactory) -> Any:
 @pytest.fixture(scope="module")
 def local(models: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sweep_local")
-    assert sweep_arm.main(["--out", str(out), "--workers", "2", *ARGS]) == 0
+    assert sweep.main(["--out", str(out), "--workers", "2", *ARGS]) == 0
     return out
 
 
@@ -72,28 +68,28 @@ def test_resume_recomputes_only_a_missing_run(local: Path, capsys: pytest.Captur
     gone = recs[3]
     gone.unlink()
     mtimes = {p.name: p.stat().st_mtime_ns for p in recs if p != gone}
-    assert sweep_arm.main(["--out", str(local), "--workers", "1", *ARGS]) == 0
+    assert sweep.main(["--out", str(local), "--workers", "1", *ARGS]) == 0
     assert "1 run(s) computed, 7 from" in capsys.readouterr().out
     assert gone.is_file()
     assert {p.name: p.stat().st_mtime_ns for p in recs if p != gone} == mtimes
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--executor", "dask"], "invalid choice"),
-    (["--executor", "ray", "--address", "no-port"], "HOST:PORT"),
-    (["--address", "10.0.0.1:6379"], "needs --executor ray"),
-    (["--executor", "ray", "--address", "127.0.0.1:1"], "no Ray cluster reachable"),
-    (["--forces", "-5"], "--forces"),
-    (["--workers", "0"], "--workers"),
-    (["--kinds", "spin"], "--kinds"),
-    (["--learners", "gp"], "--learners"),
-])
-def test_bad_input_is_one_line_exit_2(argv: list[str], message: str, tmp_path: Path,
+#: what the one line says -> the options that make the sweep say it
+BAD_INPUT: dict[str, list[str]] = {
+    "invalid choice": ["--executor", "dask"],
+    "HOST:PORT": ["--executor", "ray", "--address", "no-port"],
+    "needs --executor ray": ["--address", "10.0.0.1:6379"],
+    "no Ray cluster reachable": ["--executor", "ray", "--address", "127.0.0.1:1"],
+    "--forces": ["--forces", "-5"],
+    "--workers": ["--workers", "0"],
+    "--kinds": ["--kinds", "spin"],
+    "--learners": ["--learners", "gp"],
+}
+
+
+@pytest.mark.parametrize("message, argv", BAD_INPUT.items())
+def test_bad_input_is_one_line_exit_2(message: str, argv: list[str], tmp_path: Path,
                                       capsys: pytest.CaptureFixture[str]) -> None:
-    try:
-        code = sweep_arm.main(["--out", str(tmp_path), *argv])
-    except SystemExit as e:              # argparse's own errors
-        code = e.code
-    err = capsys.readouterr().err.strip()
+    code, _, err = run_main(sweep.main, ["--out", str(tmp_path), *argv], capsys)
     assert code == 2 and message in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "runs").exists()

@@ -203,20 +203,19 @@ def test_cli_train_eval_plot(tmp_path: Path) -> None:
 
 
 def test_arm_loop_carries_the_phase(fields: dict[str, TrackingField]) -> None:
-    """sim's PhaseLoop waits while the measured tool is held, and integrate_phase (the arm's
-    reference) agrees with the field's own rollout."""
-    from lfd.integrate import rk4_phase as integrate_phase
-    from sim.loop import PhaseLoop
-
+    """The field's runner (what the arm's loop calls) waits while the measured tool is held, and its
+    single-start trajectory (the arm's reference) agrees with the field's own rollout."""
     f = fields["K=3"]
-    loop = PhaseLoop(f, 0.002)
     held = f.reference(0.0)[0]
-    for _ in range(500):
-        loop(held)
-    assert len(loop.trace) == 500 and loop.s < 0.25 * 1.0 / f.duration
+    loop = f.runner(held, 0.002)
+    for k in range(500):
+        loop(held, k * 0.002)
+    phases = loop.phases()
+    assert phases is not None and len(phases) == 501 and phases[-1] < 0.25 * 1.0 / f.duration
     t = np.linspace(0.0, 2.0, 401)
     x0 = held + 0.05
-    xs, ss = integrate_phase(f.phase_point_fn(x0), x0, t)
+    xs, ss = f.trajectory(x0, t)
+    assert ss is not None
     xr, sr = f.rollout_with_phase(x0, t)
     np.testing.assert_allclose(xs, xr, atol=1e-6)
     np.testing.assert_allclose(ss, sr, atol=1e-8)
@@ -224,7 +223,8 @@ def test_arm_loop_carries_the_phase(fields: dict[str, TrackingField]) -> None:
 
 def test_bench_model_integrates_the_phase(spiral: lfd.DemoSet) -> None:
     """``lfd bench``'s wrapper rolls the tracking field out with its phase, on irregular grids too."""
-    from lfd.bench.evaluate import PhaseFieldModel, fit
+    from lfd.bench.fields import PhaseFieldModel
+    from lfd.bench.spaces import fit
 
     model = fit("tracking", spiral.subset([0, 1]), 0, {"rate": 3.0})
     assert isinstance(model, PhaseFieldModel)

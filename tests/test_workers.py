@@ -24,7 +24,6 @@ import pytest
 from lfd.bench.executor import Failure, WorkerError, run_parallel
 
 ROOT = Path(__file__).resolve().parents[1]
-TESTS = str(Path(__file__).resolve().parent)
 PYTHON = sys.executable
 SWEEP_ARGS = ["--robots", "planar", "--learners", "node", "--directions", "8", "--forces", "20", "--offsets",
               "0.05", "--kinds", "push,offset", "--option", "node.iterations=30", "--option", "node.hidden=[16,16]"]
@@ -58,7 +57,7 @@ def test_local_pool_retries_a_killed_run_and_gives_up_after_the_limit(tmp_path: 
     done: dict[int, tuple[int, int]] = {}
     failed: dict[int, Failure] = {}
     run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n, w: done.__setitem__(i, (r, n)),
-                 paths=(TESTS,), on_failed=failed.__setitem__)
+                 on_failed=failed.__setitem__)
     assert done == {0: (0, 1), 1: (10, 2), 2: (20, 1), 4: (40, 1)}
     assert failed == {3: Failure("the worker process was killed by SIGKILL", 3)}
 
@@ -68,7 +67,7 @@ def test_without_a_failure_callback_a_lost_run_is_a_worker_error_after_the_other
     done: dict[int, Any] = {}
     with pytest.raises(WorkerError, match=r"^1 run\(s\) lost: a worker process died under each of them 2 times "
                                           r"\(the worker process was killed by SIGKILL\)$"):
-        run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n, w: done.__setitem__(i, r), paths=(TESTS,),
+        run_parallel(die_on_first_try, items, 2, on_done=lambda i, r, n, w: done.__setitem__(i, r),
                      max_attempts=2)
     assert done == {1: 10}
 

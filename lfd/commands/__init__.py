@@ -6,15 +6,17 @@ model with its demos.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from lfd.errors import DemoError
+from lfd.interrupts import say
 
 if TYPE_CHECKING:  # imported when a command runs, so that ``lfd --help`` stays fast
     import argparse
 
     from lfd.demos import DemoSet
     from lfd.field import VelocityField
+    from lfd.pose import PoseChart
 
 MODEL_HELP = "model file written by 'lfd train'"
 DEMOS_HELP = ("spiral, spiral3d, lasa:NAME, robottasks:TASK, bag:PATH:/topic[:PARENT:CHILD] "
@@ -33,22 +35,29 @@ def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False) -
     pose model come back as the model's chart points (``lfd.pose.chart_demos``, shape (N, T, 6): metres,
     and metres per ``ROTATION_LENGTH`` of turn), which is what the model's field maps."""
     from lfd.demos import load_demos
+    from lfd.field import StateSpace
     from lfd.learners import load
+    from lfd.pose import chart_demos
 
     field = load(model_path, allow_nonfinite)
     demos = load_demos(spec)
-    if (field.chart is not None) != demos.has_orientation:
-        kind = "poses" if field.chart is not None else "positions"
-        raise DemoError(f"{demos.name}: the model {model_path} is trained on {kind}, the demos are "
-                        f"{'poses' if demos.has_orientation else 'positions'}")
-    if field.chart is not None:
-        from lfd.pose import chart_demos
-
-        demos = chart_demos(demos, field.chart)
+    say_notes(demos)
+    poses = field.space is StateSpace.POSE
+    if poses != demos.has_orientation:
+        raise DemoError(f"{demos.name}: the model {model_path} is trained on {'poses' if poses else 'positions'}, "
+                        f"the demos are {'poses' if demos.has_orientation else 'positions'}")
+    if poses:
+        demos = chart_demos(demos, cast("PoseChart", field.chart))
     if demos.dim != field.dim:
         raise DemoError(f"{demos.name}: demos are {demos.dim}-D but the model {model_path} is "
                         f"{field.dim}-D")
     return field, demos
+
+
+def say_notes(demos: DemoSet) -> None:
+    """Each line of ``demos.notes`` (what the clean-up of a recording did) on stderr, ``lfd: note: ...``."""
+    for note in demos.notes:
+        say(f"lfd: note: {note}")
 
 
 def seed(text: str) -> int:

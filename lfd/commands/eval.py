@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
+
+if TYPE_CHECKING:
+    from lfd.pose import PoseChart
 
 MAX_EVAL_SAMPLES = 50_000  # samples per demo: a rollout of more steps takes minutes
 LONG_EVAL_SAMPLES = 10_000  # beyond this, say on stderr that the rollout takes a while
@@ -33,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from lfd.commands import check_output, model_and_demos
     from lfd.errors import ConfigError, DemoError
     from lfd.evaluation import evaluate
+    from lfd.field import StateSpace
     from lfd.io import write_json
     from lfd.metrics import dtw_step_for
 
@@ -55,9 +59,9 @@ def run(args: argparse.Namespace) -> int:
     names = list(result["mean"])
     print(format_table(names, result["per_demo"], result["mean"]))
     print(UNITS)
-    if field.chart is not None:
+    if field.space is StateSpace.POSE:
         print(f"a pose model: scored on chart points (lfd.pose), U = metres, a turn of one radian counting as "
-              f"{field.chart.length:g} m")
+              f"{cast('PoseChart', field.chart).length:g} m")
     if args.json:
         report = {"model": str(args.model), "learner": field.learner, "demos": demos.name,
                   "dim": demos.dim, "n_demos": demos.n_demos, "dtw_step": dtw_step,

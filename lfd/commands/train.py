@@ -138,13 +138,14 @@ def run(args: argparse.Namespace) -> int:
     import sys
     import warnings
 
-    from lfd.commands import check_output
+    from lfd.commands import check_output, say_notes
     from lfd.demos import demo_warnings, load_demos
     from lfd.learners import train
 
     options = learner_options(args.learner, args)
     check_output(args.out, "--out", {"demo file": args.demos})
     demos = load_demos(args.demos)
+    say_notes(demos)
     for text in demo_warnings(demos):  # shown by lfd.cli as one line "lfd: warning: ..."
         warnings.warn(text, UserWarning, stacklevel=1)
     progress = not args.quiet and sys.stderr.isatty()  # a bar only on a terminal

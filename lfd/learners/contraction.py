@@ -15,8 +15,7 @@ Eq. (C4); an analytic global Lipschitz bound: Eq. (C6) (``lipschitz_bound``).
 Training minimises Eq. (C5) by full-batch L-BFGS: the field's direction and the demos' paths and
 arrival, their speed only weakly, because a contracting field's speed along a trajectory can grow at
 most sqrt(b/a)-fold and demos that start from rest cannot be followed in time (``feasible_rate``,
-``RateFeasibilityWarning``). lambda is in 1/s of user time; b/a and Lip(f) are unit-free.
-The derivations of Eqs. (C1)-(C6): docs/equations.md.
+``RateFeasibilityWarning``). lambda is in 1/s; derivations of Eqs. (C1)-(C6): docs/equations.md.
 
 References
 ----------
@@ -44,7 +43,7 @@ from lfd.field import ContractingField, VelocityField
 from lfd.learners.base import Learner
 from lfd.learners.flows import FACTORED_MIN_DIM, SWIRL_COMPONENTS, BoundedFlow, bounded_flow_numpy
 from lfd.threads import torch_threads
-from lfd.validate import check_bools, check_ints
+from lfd.validate import check_bools, check_ints, check_numbers
 
 # 1/s. With the path loss of Eq. (C5) the rate matters little for the fit (reports/contraction_tradeoff.md);
 # a faster rate makes every rollout arrive sooner, but fewer demos can be followed in time
@@ -108,18 +107,12 @@ class ContractionConfig:
     path_samples: int = 50
 
     def __post_init__(self) -> None:
-        for name in ("rate", "window", "length_scale", "speed_weight", "traj_weight"):
-            v = getattr(self, name)
-            may_be_zero = name in ("speed_weight", "traj_weight")
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0 or (v == 0 and not may_be_zero) or v > 1e6:
-                raise ValueError(f"{name} must be a {'non-negative' if may_be_zero else 'positive'} "
-                                 f"number below 1e6, got {v!r}")
-            setattr(self, name, float(v))
-        v = self.max_condition
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v <= 1:
-            raise ValueError(f"max_condition must be a number > 1 (or inf), got {v!r}")
-        self.max_condition = float(v)
+        check_numbers(self, ("rate", "window", "length_scale"), "a positive number below 1e6",
+                      lambda v: 0 < v <= 1e6, to_float=True)
+        check_numbers(self, ("speed_weight", "traj_weight"), "a non-negative number below 1e6",
+                      lambda v: 0 <= v <= 1e6, to_float=True)
+        check_numbers(self, ("max_condition",), "a number > 1 (or inf)", lambda v: v > 1, to_float=True,
+                      allow_inf=True)
         check_ints(self, (("layers", 1, 64), ("hidden", 1, 4096), ("iterations", 0, 10**6), ("batch", 1, 10**6),
                           ("traj_points", 2, 10**4), ("path_samples", 2, 10**4)))
         check_bools(self, ("damping",))
@@ -302,6 +295,10 @@ class ContractionField(ContractingField):
     def metric_normalized_torch(self, xn: torch.Tensor) -> torch.Tensor:
         """M_n(x_n) = J_phi' J_phi, shape (B, d, d); differentiable (used by ``lfd.certify``)."""
         return self.module.metric(xn)
+
+    def contraction_metric(self) -> Callable[[torch.Tensor], torch.Tensor]:
+        """``metric_normalized_torch``: the metric Eq. (C1) holds in (``lfd.certify``)."""
+        return self.metric_normalized_torch
 
     def metric(self, x: np.ndarray) -> np.ndarray:
         """M(x) = J_phi(x_n)' J_phi(x_n) / s^2 in user units. x : array, shape (..., d) -> (..., d, d)."""

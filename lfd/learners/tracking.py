@@ -9,15 +9,10 @@ stays autonomous:
     Eq. (T3): dx/dt = s_dot r'(s) + K (r(s) - x),
     Eq. (T4): ds/dt = h(|x - r(s)|) c(s) / T,   h(e) = 1 / (1 + (e / eps)^2),
 
-c(s) stopping the phase at s = 1 exactly (``PHASE_END``) and h the phase stopping of DMPs (the phase
-waits when the motion is held back; around obstacles h is blended toward the clock, Eq. (T4b),
-``phase_point_fn(clock_weight=...)``). For ANY phase law the error e = x - r(s) obeys de/dt = -K e:
-
-    Eq. (T5): |x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t),
-
-the paper's Eq. (18) with lambda = K and overshoot 1: for a given phase signal the x-subsystem has
-Jacobian -K I and contracts at rate K in the Euclidean metric (the paper's Eq. (17), a = b = 1;
-``check_tracking_contraction``). K is in 1/s. Derivations of Eqs. (T1)-(T5): docs/equations.md.
+c(s) stopping the phase at s = 1 (``PHASE_END``), h the phase stopping of DMPs (Eq. (T4b) around
+obstacles). For ANY phase law the error e = x - r(s) obeys de/dt = -K e, Eq. (T5):
+|x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t), the paper's Eq. (18) with lambda = K and overshoot 1
+(``check_tracking_contraction``). K is in 1/s. Derivations of Eqs. (T1)-(T5): docs/equations.md.
 
 References
 ----------

@@ -3,7 +3,9 @@
 - ``shapes``: the obstacle shapes (``Obstacle``, ``Sphere``, ``Box``, ``Capsule``): Gamma, normal, motion;
 - ``parse``: command-line text -> shape (``parse_obstacle``);
 - ``groups``: overlapping obstacles merged into one modulation unit;
-- ``avoidance``: the modulated field (``AvoidingField``, ``avoid``; the math is in its docstring);
+- ``modulation``: Eqs. (O1)-(O3) of docs/equations.md around the units, batched and for one point
+  (``_point_kernel``: the one-point arithmetic, as Python and compiled with numba);
+- ``avoidance``: the avoiding fields (``AvoidingField``, ``PhasedAvoidingField``, ``avoid``);
 - ``starts``: seeded starts outside the obstacles (``starts_outside``);
 - ``scenes``: seeded obstacle scenes on and near a demonstrated path (``random_scene``).
 """

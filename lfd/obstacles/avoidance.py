@@ -1,31 +1,10 @@
-"""Obstacle avoidance for any velocity field by dynamical-system modulation [1]_ that keeps the
-field converging (docs/equations.md, Eqs. (O1)-(O3)).
+"""Obstacle avoidance for any velocity field, by a modulation that keeps it converging.
 
-A field f (a ``VelocityField``, a time-varying field such as ``lfd.goal.MovingGoalField``, or a
-field with a phase, ``lfd.learners.tracking``) is wrapped so that trajectories go around
-obstacles, never entering one, and are turned toward the goal beside them (what is proved and
-what is measured about reaching it: docs/equations.md):
-
-.. math::
-
-    \\dot x = M(x)\\,\\big(b(x) - \\dot x_o\\big) + \\dot x_o, \\qquad
-    M(x) = E(x)\\,D(x)\\,E(x)^{-1}                                          \\quad (O1)
-
-    b = (1 - \\omega) f + \\omega \\lVert f \\rVert \\hat c, \\quad
-    \\hat c = (g - x) / \\lVert g - x \\rVert                                   \\quad (O2)
-
-with the obstacle velocity :math:`\\dot x_o` (0 for static ones), E's first column the reference
-direction r = (x - x_ref) / |x - x_ref| ([2]_), its others tangents orthogonal to the normal n, and
-D = diag(1 - eta w / Gamma^(1/rho), 1 + eta w / Gamma^(1/rho), ...) (w the weights of several
-obstacles; Eq. (O3): eta fades the modulation out near the goal).
-omega rises from 0 half an obstacle's size away to 1 on its surface, so near an obstacle the field
-is turned toward the goal (the convergence dynamics of [3]_) before it is modulated; |b| <= |f|. With
-b = a r + t (t orthogonal to n) M b = lambda_r a r + lambda_t t: O(d), no matrix inverse. Several
-obstacles combine by the weighted product of [1]_ (``_kzb_weights``); overlapping ones are merged
-first (``lfd.obstacles.groups``). Preserved (checked in ``tests/test_obstacles.py``):
-impenetrability, the goal as an equilibrium, no tail effect (lambda_r = 1 where b points away),
-and no stall on a surface except the saddle behind each obstacle; ``convergence=False`` gives the
-plain modulation of f.
+``avoid`` wraps a field (a ``VelocityField``, a time-varying field such as ``lfd.goal.MovingGoalField``,
+or a field with a phase, ``lfd.learners.tracking``) so that its trajectories go around obstacles,
+never entering one, and are turned toward the goal beside them: the modulation of [1]_ about the
+reference point of [2]_, steered by the convergence dynamics of [3]_ (``lfd.obstacles.modulation``;
+Eqs. (O1)-(O3) of docs/equations.md, with what is proved and what is measured about reaching the goal).
 
 References
 ----------
@@ -40,94 +19,59 @@ References
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from lfd.errors import ConfigError
-from lfd.field import FieldWrapper, PhasedRuns, cached_single_point_evaluator, is_phased, is_time_varying
+from lfd.field import FieldKind, FieldWrapper, PhasedRuns, by_kind, cached_single_point_evaluator, require_kind
 from lfd.integrate import rk4_phase, rk4_step
-from lfd.obstacles.groups import MERGE_POWER, _group
+from lfd.obstacles.groups import _Unit
+from lfd.obstacles.modulation import (
+    CONVERGENCE_BAND,
+    DETOUR_HOLD,
+    GOAL_FADE,
+    MIN_GOAL_GAMMA,
+    REACTIVITY,
+    Modulation,
+    PointModulator,
+    settings,
+)
 from lfd.obstacles.parse import parse_obstacle
-from lfd.obstacles.shapes import _EPS, Box, Capsule, Obstacle, Sphere, _pad3
+from lfd.obstacles.shapes import Obstacle
 
-__all__ = ["AvoidingField", "PhasedAvoidingField", "avoid", "CONVERGENCE_BAND", "GOAL_FADE", "MIN_GOAL_GAMMA",
-           "REACTIVITY"]
+__all__ = ["AvoidingField", "PhasedAvoidingField", "avoid", "settings", "CONVERGENCE_BAND", "DETOUR_HOLD",
+           "GOAL_FADE", "MIN_GOAL_GAMMA", "REACTIVITY"]
 
-#: default rho of the eigenvalues 1 -+ 1/Gamma^(1/rho) (see ``AvoidingField``)
-REACTIVITY = 0.5
-#: the goal must have Gamma >= this (1% of the obstacle's size outside its surface)
-MIN_GOAL_GAMMA = 1.01
-#: Gamma is floored at this in the eigenvalues: a step's stage that lands deep inside an obstacle
-#: gets a bounded velocity (with ``INSIDE_NR_FLOOR``, a bounded multiple of the nominal speed)
-GAMMA_FLOOR = 0.5
-#: inside an obstacle n . r is floored at this (a merged group need not be star-shaped there)
-INSIDE_NR_FLOOR = 0.1
-#: beta of Eq. (O2): within Gamma < 1 + beta of an obstacle the nominal field turns toward the goal
-CONVERGENCE_BAND = 0.5
-#: the modulation fades out within this fraction of the goal's clearance from an obstacle, Eq. (O3)
-GOAL_FADE = 0.5
-#: Eq. (T4b): the phase keeps the clock's pace up to Gamma = 1 + this, the whole band of Eq. (O2),
-#: and its weight falls to 0 over a further ``CONVERGENCE_BAND``
-DETOUR_HOLD = CONVERGENCE_BAND
+#: the nominal velocity at points x (B, d) and time t [s], by the wrapped field's kind (an autonomous
+#: field, and the autonomous view of a phased one, take no time)
+_NOMINAL: dict[FieldKind, Callable[[Any, np.ndarray, float], np.ndarray]] = {
+    FieldKind.AUTONOMOUS: lambda f, x, t: f(x),
+    FieldKind.TIME_VARYING: lambda f, x, t: f(x, t),
+    FieldKind.PHASED: lambda f, x, t: f(x),
+}
 
 
-def settings(phased: bool) -> dict[str, float]:
-    """The modulation's constants, and with ``phased`` those of Eq. (T4b): what a cached result
-    of an avoiding field depends on beyond its inputs (benchmarks put them into their cache keys)."""
-    out = {"reactivity": REACTIVITY, "min_goal_gamma": MIN_GOAL_GAMMA, "gamma_floor": GAMMA_FLOOR,
-           "inside_nr_floor": INSIDE_NR_FLOOR, "band": CONVERGENCE_BAND, "goal_fade": GOAL_FADE,
-           "merge_power": MERGE_POWER}
-    if phased:
-        out["detour_hold"] = DETOUR_HOLD
-    return out
+def _autonomous_point(nominal: Callable[[np.ndarray], np.ndarray], mod: PointModulator) -> Callable[..., np.ndarray]:
+    """(x (d,), t) -> the avoiding dx/dt (d,) around an autonomous nominal x -> dx/dt."""
+    def f(x: np.ndarray, t: float = 0.0) -> np.ndarray:
+        return mod(x, nominal(x), t)
+    return f
 
 
-def _smoothstep(u: float) -> float:
-    """3 u^2 - 2 u^3 on u clipped to [0, 1]: 0 -> 0, 1 -> 1, C1."""
-    u = 0.0 if u < 0.0 else (1.0 if u > 1.0 else u)
-    return u * u * (3.0 - 2.0 * u)
+def _timed_point(nominal: Callable[[np.ndarray, float], np.ndarray], mod: PointModulator) -> Callable[..., np.ndarray]:
+    """(x (d,), t) -> the avoiding dx/dt (d,) around a time-varying nominal (x, t) -> dx/dt."""
+    def f(x: np.ndarray, t: float = 0.0) -> np.ndarray:
+        return mod(x, nominal(x, t), t)
+    return f
 
 
-def _smoothstep_array(u: np.ndarray) -> np.ndarray:
-    """``_smoothstep`` elementwise."""
-    u = np.clip(u, 0.0, 1.0)
-    return u * u * (3.0 - 2.0 * u)
-
-
-def _mover_velocity(movers: Sequence[tuple[int, Obstacle]], w: Sequence[float], t: float
-                    ) -> tuple[float, float, float]:
-    """The weighted velocity sum_k w_k u_k(t) of the moving obstacles, (k, obstacle) pairs, as
-    three floats (z = 0 in 2-D): the single-point path's frame velocity."""
-    u0 = u1 = u2 = 0.0
-    for k, o in movers:
-        o0, o1, o2 = _pad3(o.offset_velocity(t))
-        u0, u1, u2 = u0 + w[k] * o0, u1 + w[k] * o1, u2 + w[k] * o2
-    return u0, u1, u2
-
-
-def _kzb_weights(gammas: Sequence[float]) -> list[float]:
-    """w_k = prod_{i != k} (Gamma_i - 1) / ((Gamma_k - 1) + (Gamma_i - 1)), the weights of [1]_
-    (Gamma_i - 1 clipped at 0; a point on or inside an obstacle gives it the full weight)."""
-    e = [g - 1.0 if g > 1.0 else 0.0 for g in gammas]
-    if len(e) == 2:
-        s = e[0] + e[1]
-        return [e[1] / s, e[0] / s] if s > 0.0 else [0.5, 0.5]
-    if len(e) == 3 and e[0] > 0.0 and e[1] > 0.0 and e[2] > 0.0:
-        a, b, c = e
-        ab, ac, bc = a + b, a + c, b + c
-        return [b * c / (ab * ac), a * c / (ab * bc), a * b / (ac * bc)]
-    w = []
-    for k, ek in enumerate(e):
-        prod = 1.0
-        for i, ei in enumerate(e):
-            if i != k:
-                den = ek + ei
-                prod *= ei / den if den > 0.0 else 0.5
-        w.append(prod)
-    return w
+#: the single-point evaluator around the nominal field's own, by its kind
+_POINT: dict[FieldKind, Callable[[Any, PointModulator], Callable[..., np.ndarray]]] = {
+    FieldKind.AUTONOMOUS: _autonomous_point, FieldKind.TIME_VARYING: _timed_point}
 
 
 class AvoidingField(FieldWrapper):
@@ -136,7 +80,7 @@ class AvoidingField(FieldWrapper):
 
     Parameters
     ----------
-    field : VelocityField or a time-varying field (``lfd.goal.MovingGoalField``)
+    field : an autonomous field (``VelocityField``) or a time-varying one (``lfd.goal.MovingGoalField``)
         The nominal field f(x) (or f(x, t)) [units/s].
     obstacles : sequence of Obstacle
         In the field's dimension and units.
@@ -154,7 +98,8 @@ class AvoidingField(FieldWrapper):
         winding field against an obstacle.
 
     Calls: ``field(x, t=0)`` with x of shape (d,) or (..., d); ``single_point_evaluator()`` for
-    control loops; ``rollout(x0, t)``; ``gamma(x, t)`` the smallest Gamma over obstacles.
+    control loops; ``rollout(x0, t)``; ``gamma(x, t)`` the smallest Gamma over obstacles. A field
+    with a phase takes ``PhasedAvoidingField``: ``avoid`` picks the class by the field's kind.
 
     References
     ----------
@@ -162,12 +107,12 @@ class AvoidingField(FieldWrapper):
        avoidance", Autonomous Robots 32(4), 433-454, 2012. doi:10.1007/s10514-012-9287-y
     """
 
+    #: the kinds of field this class wraps (``lfd.field.FieldKind``)
+    wraps: ClassVar[tuple[FieldKind, ...]] = (FieldKind.AUTONOMOUS, FieldKind.TIME_VARYING)
+
     def __init__(self, field: Any, obstacles: Sequence[Obstacle], reactivity: float = REACTIVITY,
                  min_goal_gamma: float = MIN_GOAL_GAMMA, convergence: bool = True) -> None:
         obs: list[Obstacle] = list(obstacles)
-        if isinstance(field, AvoidingField):  # avoid(avoid(f, A), B) == avoid(f, A + B)
-            obs = field.obstacles + obs
-            field = field.field
         for i, o in enumerate(obs):
             if not isinstance(o, Obstacle):
                 raise ConfigError(f"obstacle {i} is a {type(o).__name__}, not an lfd Obstacle")
@@ -179,95 +124,43 @@ class AvoidingField(FieldWrapper):
             raise ConfigError(f"min_goal_gamma must be a number >= 1, got {min_goal_gamma!r}")
         if not isinstance(convergence, bool):
             raise ConfigError(f"convergence must be True or False, got {convergence!r}")
-        if is_phased(field) and not isinstance(self, PhasedAvoidingField):
-            raise ConfigError("a field with a phase avoids obstacles through lfd.avoid (a PhasedAvoidingField)")
+        require_kind(field, self.wraps, f"{type(self).__name__} (build it with lfd.avoid)")
         if field.dim > 3:
             raise ConfigError(f"obstacles live in 2-D or 3-D task space; this field is {field.dim}-D")
         self.field = field
         self.obstacles: list[Obstacle] = obs
         self.reactivity = float(reactivity)
         self.convergence = bool(convergence)
-        self._time_varying = is_time_varying(field)
-        self.units = _group(obs)
+        self.modulation = Modulation(obs, field.dim, reactivity, convergence)
         goals = np.atleast_2d(field.goal_samples())
-        fade: list[float] = []
-        for u in self.units:
-            g = np.min(u.geometry(goals, 0.0)[0]) if not u.moving else float("inf")
-            if g < min_goal_gamma:
-                raise ConfigError(f"goal lies inside obstacle {u.describe()}" if g < 1.0 else
-                                  f"goal lies inside obstacle {u.describe()}'s clearance: Gamma(goal) = "
-                                  f"{g:.4f} < {min_goal_gamma} (move the goal or shrink the obstacle)")
-            if u.moving:
-                gm = float(u.obstacle.gamma(goals[0], 0.0))
-                if gm < min_goal_gamma:
-                    raise ConfigError(f"goal lies inside obstacle {u.describe()} at t = 0")
-            # Eq. (O3): Gamma is (1 / l_min)-Lipschitz, so within this radius of the goal Gamma > 1
-            length = min(m.size for m in u.members)
-            fade.append(0.0 if u.moving or not self.convergence else GOAL_FADE * length * (float(g) - 1.0))
-        self._fade = fade
+        self._fixed_goal = len(goals) == 1     # a goal that visits one place does not move
+        self._fade = self.modulation.goal_fades(goals, min_goal_gamma)
+
+    @property
+    def units(self) -> list[_Unit]:
+        """The modulation units (``lfd.obstacles.groups``): single obstacles and merged groups."""
+        return self.modulation.units
 
     @property
     def goal(self) -> np.ndarray:
         """The attractor, shape (d,), at t = 0."""
         return self.field.goal
 
-    def goal_at(self, t: float) -> np.ndarray:
-        """The attractor at time t, shape (d,)."""
-        return self.field.goal_at(t) if self._time_varying else self.field.goal
-
-    def avoiding(self, obstacles: Sequence[Obstacle], **kw: Any) -> AvoidingField:
-        """This field with more obstacles."""
-        return avoid(self, obstacles, **kw)
+    def avoiding(self, obstacles: Sequence[Obstacle | str] | Obstacle | str, **kw: Any) -> AvoidingField:
+        """The nominal field avoiding these obstacles and ``obstacles`` too, as one modulation (``avoid``
+        of an avoiding field): overlapping obstacles merge, and Eq. (O1) weighs them all."""
+        more = [obstacles] if isinstance(obstacles, (Obstacle, str)) else list(obstacles)
+        return avoid(self.field, [*self.obstacles, *more], **kw)
 
     def gamma(self, x: np.ndarray, t: float = 0.0) -> np.ndarray:
         """min_k Gamma_k(x, t) over obstacles (merged groups count as one), shape (...) of x (..., d);
         < 1 means inside an obstacle."""
-        x = np.asarray(x, dtype=np.float64)
-        flat = x.reshape(-1, self.dim)
-        if not self.units:
-            return np.full(x.shape[:-1], np.inf)
-        g = np.min([u.geometry(flat, t)[0] for u in self.units], axis=0)
-        return g.reshape(x.shape[:-1])
+        return self.modulation.gamma(x, t)
 
     # ---- batched numpy path
     def modulate(self, x: np.ndarray, v: np.ndarray, t: float = 0.0) -> np.ndarray:
         """Eqs. (O1)-(O3): the avoiding velocity for points x and nominal velocities v, shape (B, d) each."""
-        if not self.units:
-            return v
-        geo = [u.geometry(x, t) for u in self.units]
-        G = np.stack([g for g, _, _ in geo])                             # (K, B)
-        if self.convergence:   # Eq. (O2): b = (1 - omega) f + omega |f| c_hat
-            omega = _smoothstep_array((1.0 + CONVERGENCE_BAND - G.min(axis=0)) / CONVERGENCE_BAND)
-            to_goal = self.goal_at(t) - x
-            dist = np.linalg.norm(to_goal, axis=1)
-            c_hat = to_goal / np.maximum(dist, _EPS)[:, None]
-            v = (1.0 - omega)[:, None] * v + (omega * np.linalg.norm(v, axis=1))[:, None] * c_hat
-        E = np.maximum(G - 1.0, 0.0)
-        K = len(self.units)
-        W = np.ones_like(G)
-        if K > 1:
-            for k in range(K):
-                for i in range(K):
-                    if i != k:
-                        den = E[k] + E[i]
-                        W[k] *= np.where(den > 0, E[i] / np.where(den > 0, den, 1.0), 0.5)
-        if self.convergence:   # Eq. (O3): eta_k fades the modulation out at the goal
-            for k, rho in enumerate(self._fade):
-                if rho > 0.0:
-                    W[k] = W[k] * _smoothstep_array(dist / rho)
-        vo = np.zeros_like(v)
-        for k, u in enumerate(self.units):
-            if u.moving:
-                vo = vo + W[k][:, None] * u.obstacle.offset_velocity(t)
-        f = v - vo
-        for k, (g, n, r) in enumerate(geo):
-            inv = W[k] / (np.maximum(g, GAMMA_FLOOR) ** (1.0 / self.reactivity))      # (B,)
-            nr = np.maximum(np.sum(n * r, axis=1), np.where(g < 1.0, INSIDE_NR_FLOOR, 1e-6))
-            a = np.sum(n * f, axis=1) / nr                                     # (B,)
-            tan = f - a[:, None] * r
-            lam_r = np.where(a < 0.0, 1.0 - inv, 1.0)
-            f = (lam_r * a)[:, None] * r + (1.0 + inv)[:, None] * tan
-        return f + vo
+        return self.modulation(x, v, t, self.goal_at(t), self._fade)
 
     def __call__(self, x: np.ndarray, t: float = 0.0) -> np.ndarray:
         """dx/dt, same shape as x : array, shape (d,) or (..., d) [units/s], at time t [s]."""
@@ -277,7 +170,7 @@ class AvoidingField(FieldWrapper):
         if x.ndim == 1:
             return cached_single_point_evaluator(self)(x, t)
         flat = x.reshape(-1, self.dim)
-        v = self.field(flat, t) if self._time_varying else self.field(flat)
+        v = by_kind(self.field, _NOMINAL)(self.field, flat, t)
         return self.modulate(flat, np.asarray(v, dtype=np.float64), t).reshape(x.shape)
 
     def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1,
@@ -312,22 +205,9 @@ class AvoidingField(FieldWrapper):
         return out[0] if np.ndim(x0) == 1 else out
 
     def push_out(self, x: np.ndarray, t: float = 0.0) -> np.ndarray:
-        """Points x, shape (B, d), moved along each obstacle's normal toward Gamma >= 1: up to 8
-        rounds of a Newton step on sdf = (Gamma - 1) l per obstacle (exact for one convex
-        obstacle: 1e-9 units outside its surface)."""
-        x = np.array(x, dtype=np.float64)
-        for _ in range(8):
-            moved = False
-            for u in self.units:
-                g, n, _ = u.geometry(x, t)
-                inside = g < 1.0
-                if inside.any():
-                    length = min(m.size for m in u.members)
-                    x[inside] += ((1.0 - g[inside]) * length + 1e-9)[:, None] * n[inside]
-                    moved = True
-            if not moved:
-                break
-        return x
+        """Points x, shape (B, d), moved along each obstacle's normal toward Gamma >= 1
+        (``Modulation.push_out``)."""
+        return self.modulation.push_out(x, t)
 
     def _rk4(self, x: np.ndarray, t0: float, t1: float, n: int) -> np.ndarray:
         """n classic RK4 steps (``lfd.integrate.rk4_step``) of the batch x, shape (B, d), from t0 to t1."""
@@ -337,143 +217,30 @@ class AvoidingField(FieldWrapper):
         return x
 
     # ---- single-point path
-    def _compilable(self) -> bool:
-        """Whether ``lfd.obstacles._point_kernel`` takes these obstacles: static ones of the
-        built-in shapes, and a fixed goal."""
-        return (bool(self.units) and not any(u.moving for u in self.units) and not self._time_varying
-                and all(type(o) in (Sphere, Box, Capsule) for u in self.units for o in u.members))
-
-    def _fades_for(self, goal: np.ndarray) -> list[float]:
-        """r_k of Eq. (O3) for a fixed goal, shape (d,) (``_fade`` for the field's own goal);
-        ``ConfigError`` if that goal lies inside an obstacle."""
-        fades = []
-        for u in self.units:
-            g = float(u.geometry(np.asarray(goal, dtype=np.float64)[None], 0.0)[0][0])
-            if g < 1.0:
-                raise ConfigError(f"the run's goal {np.round(goal, 6).tolist()} lies inside obstacle {u.describe()}")
-            length = min(m.size for m in u.members)
-            fades.append(0.0 if u.moving or not self.convergence else GOAL_FADE * length * (g - 1.0))
-        return fades
-
     def point_band(self, compiled: bool = True, hold: float = 0.0) -> Callable[[np.ndarray], float]:
-        """A band weight for one point: x (d,) -> a float in [0, 1], 1 up to Gamma = 1 + ``hold``
-        from the nearest obstacle and 0 from Gamma = 1 + ``hold`` + ``CONVERGENCE_BAND`` on, the
-        smoothstep between (static obstacles; compiled like ``point_modulator``). ``hold`` = 0 is
-        omega of Eq. (O2); ``DETOUR_HOLD`` is the detour weight of Eq. (T4b)."""
-        if compiled and self._compilable():
-            from lfd.obstacles._point_kernel import band_weight, pack
+        """A band weight for one point, x (d,) -> [0, 1] (``Modulation.band``): ``hold`` = 0 is omega of
+        Eq. (O2), ``DETOUR_HOLD`` the detour weight of Eq. (T4b)."""
+        return self.modulation.band(hold, compiled)
 
-            prm = pack(self.units, [0.0] * len(self.units), self.reactivity, self.convergence, CONVERGENCE_BAND,
-                       _pad3(self.field.goal), (GAMMA_FLOOR, INSIDE_NR_FLOOR), self.dim == 2, MERGE_POWER, _EPS)
-
-            def wc(x: np.ndarray) -> float:
-                return float(band_weight(x, prm, hold))
-            return wc
-        geoms = [u.point_geometry() for u in self.units]
-        two, inv_band = self.dim == 2, 1.0 / CONVERGENCE_BAND
-
-        def w(x: np.ndarray) -> float:
-            x0, x1, x2 = (*x.tolist(), 0.0) if two else x.tolist()
-            if not geoms:
-                return 0.0
-            gmin = min(gm(x0, x1, x2, 0.0)[0] for gm in geoms)
-            return _smoothstep((1.0 + hold + CONVERGENCE_BAND - gmin) * inv_band)
-        return w
-
-    def point_modulator(self, compiled: bool = True, goal: np.ndarray | None = None
-                        ) -> Callable[[np.ndarray, np.ndarray, float], np.ndarray]:
-        """``modulate`` for one point, as plain floats (written out for 3-D; a 2-D point is padded
-        with z = 0): (x (d,), v (d,), t) -> the avoiding velocity (d,), user units.
+    def point_modulator(self, compiled: bool = True, goal: np.ndarray | None = None) -> PointModulator:
+        """``modulate`` for one point, as plain floats (``Modulation.point``): (x (d,), v (d,), t) ->
+        the avoiding velocity (d,), user units.
 
         With ``compiled`` (the default), static obstacles of the built-in shapes and a fixed goal
-        take the same arithmetic compiled with numba (``lfd.obstacles._point_kernel``; equal to
-        the Python closure to round-off); moving obstacles, a moving goal or other shapes take
-        the Python closure. ``goal``, shape (d,): the fixed point g of Eqs. (O2)-(O3) (default
-        the field's goal; a start-conditioned phase field's run ends at r(1 | x0) instead)."""
-        movers = [(k, u.obstacle) for k, u in enumerate(self.units) if u.moving]
-        own_goal = goal is None
+        take the compiled kernel; moving obstacles, a moving goal or other shapes take the Python
+        closure (the same arithmetic). ``goal``, shape (d,): the fixed point g of Eqs. (O2)-(O3)
+        (default the field's goal; a start-conditioned phase field's run ends at r(1 | x0) instead)."""
+        own = goal is None
         goal_g = np.asarray(self.field.goal if goal is None else goal, dtype=np.float64)
-        fade_g = self._fade if own_goal else self._fades_for(goal_g)
-        if compiled and self._compilable():
-            from lfd.obstacles._point_kernel import modulate, pack
-
-            prm = pack(self.units, fade_g if self.convergence else [0.0] * len(self.units), self.reactivity,
-                       self.convergence, CONVERGENCE_BAND, _pad3(goal_g), (GAMMA_FLOOR, INSIDE_NR_FLOOR),
-                       self.dim == 2, MERGE_POWER, _EPS)
-
-            def mc(x: np.ndarray, v: np.ndarray, t: float = 0.0) -> np.ndarray:
-                return modulate(x, v, prm)
-            return mc
-        geoms = [u.point_geometry() for u in self.units]
-        inv_rho = 1.0 / self.reactivity
-        square = inv_rho == 2.0
-        two = self.dim == 2
-        K = len(geoms)
-        array = np.array
-        steer = self.convergence
-        band, inv_band = CONVERGENCE_BAND, 1.0 / CONVERGENCE_BAND
-        fades = [(k, 1.0 / rho) for k, rho in enumerate(fade_g) if rho > 0.0]
-        goal_at, tv = self.goal_at, self._time_varying and own_goal
-        g0, g1, g2 = _pad3(goal_g)
-        sqrt = math.sqrt
-
-        def m(x: np.ndarray, v: np.ndarray, t: float = 0.0) -> np.ndarray:
-            if two:
-                x0, x1 = x.tolist()
-                v0, v1 = v.tolist()
-                x2 = v2 = 0.0
-            else:
-                x0, x1, x2 = x.tolist()
-                v0, v1, v2 = v.tolist()
-            if K == 0:
-                return array((v0, v1)) if two else array((v0, v1, v2))
-            geo = [gm(x0, x1, x2, t) for gm in geoms]
-            w: Sequence[float] = (1.0,) if K == 1 else _kzb_weights([gg[0] for gg in geo])
-            dist = 0.0
-            if steer:   # Eq. (O2)
-                a0, a1, a2 = (_pad3(goal_at(t)) if tv else (g0, g1, g2))
-                c0, c1, c2 = a0 - x0, a1 - x1, a2 - x2
-                dist = sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-                gmin = min(gg[0] for gg in geo)
-                om = _smoothstep((1.0 + band - gmin) * inv_band)
-                if om > 0.0:
-                    sp = om * sqrt(v0 * v0 + v1 * v1 + v2 * v2) / (dist if dist > _EPS else _EPS)
-                    keep = 1.0 - om
-                    v0, v1, v2 = keep * v0 + sp * c0, keep * v1 + sp * c1, keep * v2 + sp * c2
-                if fades:   # Eq. (O3)
-                    w = list(w)
-                    for k, inv_r in fades:
-                        w[k] *= _smoothstep(dist * inv_r)
-            if movers:
-                u0, u1, u2 = _mover_velocity(movers, w, t)
-                v0, v1, v2 = v0 - u0, v1 - u1, v2 - u2
-            for k in range(K):
-                g, n0, n1, n2, r0, r1, r2 = geo[k]
-                wk = w[k]
-                if wk == 0.0:
-                    continue
-                if g < GAMMA_FLOOR:
-                    g = GAMMA_FLOOR
-                inv = wk / (g * g) if square else (wk / g if inv_rho == 1.0 else wk / g ** inv_rho)
-                nr = n0 * r0 + n1 * r1 + n2 * r2
-                floor = 1e-6 if g >= 1.0 else INSIDE_NR_FLOOR
-                a = (n0 * v0 + n1 * v1 + n2 * v2) / (nr if nr > floor else floor)
-                lt = 1.0 + inv
-                la = (1.0 - inv) * a if a < 0.0 else a
-                v0 = la * r0 + lt * (v0 - a * r0)
-                v1 = la * r1 + lt * (v1 - a * r1)
-                v2 = la * r2 + lt * (v2 - a * r2)
-            if movers:
-                v0, v1, v2 = v0 + u0, v1 + u1, v2 + u2
-            return array((v0, v1)) if two else array((v0, v1, v2))
-
-        return m
+        fades = self._fade if own else self.modulation.fades_for(goal_g)
+        moving = self.field.goal_at if own and not self._fixed_goal else None
+        return self.modulation.point(goal_g, fades, moving, compiled)
 
     def single_point_evaluator(self) -> Callable[..., np.ndarray]:
         """The fast path for one point, for control loops: ``field(x, t)`` on x of shape (d,) calls it.
 
-        The nominal field's own single-point evaluator, then ``point_modulator``.
-        ``scripts/speed_obstacles.py`` measures its extra cost over the nominal field's.
+        The nominal field's own single-point evaluator (given the time if it takes one), then
+        ``point_modulator``.
 
         Returns
         -------
@@ -481,15 +248,7 @@ class AvoidingField(FieldWrapper):
             (x, array of shape (d,), user units; t, float, s, default 0.0) -> dx/dt, array of
             shape (d,), user units.
         """
-        base = self.field.single_point_evaluator()
-        mod = self.point_modulator()
-        if self._time_varying:
-            def f(x: np.ndarray, t: float = 0.0) -> np.ndarray:
-                return mod(x, base(x, t), t)
-        else:
-            def f(x: np.ndarray, t: float = 0.0) -> np.ndarray:
-                return mod(x, base(x), t)
-        return f
+        return by_kind(self.field, _POINT)(self.field.single_point_evaluator(), self.point_modulator())
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.field!r}, {len(self.obstacles)} obstacles)"
@@ -508,6 +267,7 @@ class PhasedAvoidingField(PhasedRuns, AvoidingField):
     """
 
     field: Any   # a PhasedField (``lfd.field.PhasedField``)
+    wraps: ClassVar[tuple[FieldKind, ...]] = (FieldKind.PHASED,)
 
     def __init__(self, field: Any, obstacles: Sequence[Obstacle], **kw: Any) -> None:
         super().__init__(field, obstacles, **kw)
@@ -559,14 +319,8 @@ class PhasedAvoidingField(PhasedRuns, AvoidingField):
 
     def single_point_evaluator(self) -> Callable[..., np.ndarray]:
         """The autonomous view of the nominal field (its phase at the nearest reference point), then
-        ``point_modulator``: (x (d,), t = 0) -> dx/dt (d,)."""
-        base = self.field.single_point_evaluator()
-        mod = self.point_modulator()
-
-        def f(x: np.ndarray, t: float = 0.0) -> np.ndarray:
-            return mod(x, base(x), 0.0)
-
-        return f
+        ``point_modulator``: (x (d,), t) -> dx/dt (d,) (static obstacles: t changes nothing)."""
+        return _autonomous_point(self.field.single_point_evaluator(), self.point_modulator())
 
     def rollout_with_phase(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1,
                            s0: np.ndarray | float = 0.0, start: np.ndarray | None = None,
@@ -613,12 +367,26 @@ def _rk4_phase(fn: Callable[[np.ndarray, float], tuple[np.ndarray, float]], x: n
     return xs[1], float(ss[1])
 
 
+#: the avoiding field of each kind of nominal field
+_AVOIDERS: dict[FieldKind, type[AvoidingField]] = {FieldKind.AUTONOMOUS: AvoidingField,
+                                                   FieldKind.TIME_VARYING: AvoidingField,
+                                                   FieldKind.PHASED: PhasedAvoidingField}
+
+
+@functools.singledispatch
 def avoid(field: Any, obstacles: Sequence[Obstacle | str] | Obstacle | str, **kw: Any) -> AvoidingField:
     """``field`` modulated to avoid ``obstacles`` (Obstacle objects or ``parse_obstacle`` texts);
-    see ``AvoidingField``. Raises ``ConfigError`` when the goal lies inside or too close to one."""
+    see ``AvoidingField`` (``PhasedAvoidingField`` for a field with a phase). An avoiding field
+    given more obstacles avoids them all in one modulation (``AvoidingField.avoiding``). Raises
+    ``ConfigError`` when the goal lies inside or too close to one."""
     if isinstance(obstacles, (Obstacle, str)):
         obstacles = [obstacles]
     obs = [parse_obstacle(o, field.dim) if isinstance(o, str) else o for o in obstacles]
-    if is_phased(field):
-        return PhasedAvoidingField(field, obs, **kw)
-    return AvoidingField(field, obs, **kw)
+    return by_kind(field, _AVOIDERS)(field, obs, **kw)
+
+
+@avoid.register(AvoidingField)
+def _avoid_more(field: AvoidingField, obstacles: Sequence[Obstacle | str] | Obstacle | str,
+                **kw: Any) -> AvoidingField:
+    """avoid(avoid(f, A), B) == avoid(f, A + B) (``AvoidingField.avoiding``)."""
+    return field.avoiding(obstacles, **kw)

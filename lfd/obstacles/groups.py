@@ -26,7 +26,8 @@ from collections.abc import Callable
 import numpy as np
 
 from lfd.errors import ConfigError
-from lfd.obstacles.shapes import _EPS, Obstacle, _pad3
+from lfd.obstacles._point_kernel import EPS, pad3
+from lfd.obstacles.shapes import Obstacle
 
 #: exponent p of the smooth minimum that merges overlapping obstacles
 MERGE_POWER = 8.0
@@ -60,22 +61,22 @@ class _Unit:
             gs, grads = [], []
             for o in self.members:
                 sdf, n_k = o._sdf(y)
-                gs.append(np.maximum(1.0 + sdf / o.size, _EPS))
+                gs.append(np.maximum(1.0 + sdf / o.size, EPS))
                 grads.append(n_k / o.size)
             G = np.stack(gs)                                          # (K, B)
             g = np.sum(G ** -p, axis=0) ** (-1.0 / p)                 # (B,)
             wk = (g / G) ** (p + 1.0)                                 # (K, B)
             grad = np.einsum("kb,kbd->bd", wk, np.stack(grads))
-            n = grad / np.maximum(np.linalg.norm(grad, axis=1), _EPS)[:, None]
+            n = grad / np.maximum(np.linalg.norm(grad, axis=1), EPS)[:, None]
         q = y - self.reference
-        r = q / np.maximum(np.linalg.norm(q, axis=1), _EPS)[:, None]
+        r = q / np.maximum(np.linalg.norm(q, axis=1), EPS)[:, None]
         return g, n, r
 
     def point_geometry(self) -> Callable[[float, float, float, float],
                                          tuple[float, float, float, float, float, float, float]]:
         """The same for one point as plain floats, padded to 3-D:
         (x0, x1, x2, t) -> (Gamma, n0, n1, n2, r0, r1, r2)."""
-        f0, f1, f2 = _pad3(self.reference)
+        f0, f1, f2 = pad3(self.reference)
         o = self.obstacle
         sqrt = math.sqrt
         if len(self.members) == 1:
@@ -88,7 +89,7 @@ class _Unit:
                 acc, parts = 0.0, []
                 for sdf_k, inv_k in sdfs:
                     s, a0, a1, a2 = sdf_k(y0, y1, y2)
-                    g_k = max(1.0 + s * inv_k, _EPS)
+                    g_k = max(1.0 + s * inv_k, EPS)
                     acc += g_k ** -p
                     parts.append((g_k, a0, a1, a2, inv_k))
                 g = acc ** (-1.0 / p)
@@ -108,13 +109,13 @@ class _Unit:
                 return 1.0 + s * inv, n0, n1, n2, q0 / qn, q1 / qn, q2 / qn
             return geom
         if o.velocity is not None:
-            v0, v1, v2 = _pad3(o.velocity)
+            v0, v1, v2 = pad3(o.velocity)
 
             def offset(t: float) -> tuple[float, float, float]:
                 return v0 * t, v1 * t, v2 * t
         else:
             def offset(t: float) -> tuple[float, float, float]:
-                return _pad3(o.offset(t))
+                return pad3(o.offset(t))
 
         def geom_moving(x0: float, x1: float, x2: float, t: float
                         ) -> tuple[float, float, float, float, float, float, float]:

@@ -15,25 +15,26 @@ reference point inside it (the modulation's x_ref, ``lfd.obstacles.avoidance``).
 is displaced by ``velocity * t`` or by a ``path(t)``.
 
 Every shape gives its geometry twice: batched numpy (``_sdf``) and one point as plain floats
-(``_point_sdf3``, the control-loop path, written out for 3-D).
+(``_point_sdf3``, the control-loop path, padded to 3-D): the helpers of ``lfd.obstacles._point_kernel``
+applied to the shape's ``point_numbers``, the arithmetic the compiled kernel inlines.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from dataclasses import field as dc_field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from lfd.errors import ConfigError
+from lfd.obstacles._point_kernel import EPS, Point4, box_sdf, capsule_sdf, pad3, sphere_sdf
 
 __all__ = ["Obstacle", "Sphere", "Box", "Capsule"]
-
-_EPS = 1e-12
 
 
 def _vec(name: str, value: Any, dim: int | None = None) -> np.ndarray:
@@ -69,6 +70,8 @@ class Obstacle(ABC):
     path: Callable[[float], Any] | None = None
     reference: Any = None
     kind: str = dc_field(default="obstacle", init=False)
+    #: the shape's plain-float distance of ``lfd.obstacles._point_kernel``: (numbers..., y0, y1, y2) -> (sdf, n (3))
+    point_sdf: ClassVar[Callable[..., Point4]]
 
     # ---- construction
     def _finish(self, dim: int) -> None:
@@ -122,9 +125,14 @@ class Obstacle(ABC):
         the points y, shape (B, d), in the frame at t = 0."""
 
     @abstractmethod
-    def _point_sdf3(self) -> Callable[[float, float, float], tuple[float, float, float, float]]:
+    def point_numbers(self) -> list[float]:
+        """The shape's numbers as its ``point_sdf`` takes them before the point, padded to 3-D (packed
+        for the compiled kernel too)."""
+
+    def _point_sdf3(self) -> Callable[[float, float, float], Point4]:
         """The same for one point as plain floats, (y0, y1, y2) -> (sdf, n0, n1, n2): the
-        control-loop path, written out for 3-D (a 2-D shape is padded with z = 0)."""
+        control-loop path, padded to 3-D (a 2-D shape has z = 0)."""
+        return functools.partial(self.point_sdf, *self.point_numbers())
 
     @abstractmethod
     def describe(self) -> str:
@@ -200,12 +208,6 @@ def _check_radius(kind: str, radius: float) -> None:
         raise ConfigError(f"{kind} radius must be a finite number > 0, got {radius}")
 
 
-def _pad3(a: np.ndarray, fill: float = 0.0) -> tuple[float, float, float]:
-    """A 2- or 3-vector as three floats, z = ``fill`` for 2-D."""
-    v = [float(x) for x in a]
-    return (v[0], v[1], v[2] if len(v) == 3 else fill)
-
-
 def _fmt(a: np.ndarray) -> str:
     return "(" + ", ".join(f"{v:g}" for v in a) + ")"
 
@@ -238,20 +240,15 @@ class Sphere(_CentredObstacle):
     def _sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = y - self.center                                   # (B, d)
         dist = np.linalg.norm(q, axis=1)                      # (B,)
-        n = q / np.maximum(dist, _EPS)[:, None]
-        n[dist < _EPS] = np.eye(self.dim)[0]
+        n = q / np.maximum(dist, EPS)[:, None]
+        n[dist < EPS] = np.eye(self.dim)[0]
         return dist - self.size, n
 
-    def _point_sdf3(self) -> Callable[[float, float, float], tuple[float, float, float, float]]:
-        (c0, c1, c2), R = _pad3(self.center), self.size
+    point_sdf = staticmethod(sphere_sdf)
 
-        def sdf(y0: float, y1: float, y2: float) -> tuple[float, float, float, float]:
-            q0, q1, q2 = y0 - c0, y1 - c1, y2 - c2
-            d = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
-            if d < _EPS:
-                return -R, 1.0, 0.0, 0.0
-            return d - R, q0 / d, q1 / d, q2 / d
-        return sdf
+    def point_numbers(self) -> list[float]:
+        """c (3), R = radius + margin (``sphere_sdf``)."""
+        return [*pad3(self.center), self.size]
 
     def describe(self) -> str:
         return f"sphere at {_fmt(self.center)} radius {self.radius:g}{self._margin_text()}"
@@ -282,32 +279,16 @@ class Box(_CentredObstacle):
         out = np.linalg.norm(o, axis=1)                       # (B,) distance outside the box
         inside = np.minimum(a.max(axis=1), 0.0)               # (B,) <= 0 inside
         sgn = np.where(q >= 0, 1.0, -1.0)
-        n_out = sgn * o / np.maximum(out, _EPS)[:, None]
+        n_out = sgn * o / np.maximum(out, EPS)[:, None]
         n_in = sgn * np.eye(self.dim)[np.argmax(a, axis=1)]
         n = np.where((out > 0)[:, None], n_out, n_in)
         return out + inside - self.margin, n
 
-    def _point_sdf3(self) -> Callable[[float, float, float], tuple[float, float, float, float]]:
-        (c0, c1, c2), m = _pad3(self.center), float(self.margin)
-        h0, h1, h2 = _pad3(self.half_sizes, 1e300)   # a 2-D box is a prism of infinite height
-        cs = math.copysign
+    point_sdf = staticmethod(box_sdf)
 
-        def sdf(y0: float, y1: float, y2: float) -> tuple[float, float, float, float]:
-            q0, q1, q2 = y0 - c0, y1 - c1, y2 - c2
-            a0, a1, a2 = abs(q0) - h0, abs(q1) - h1, abs(q2) - h2
-            o0 = a0 if a0 > 0.0 else 0.0
-            o1 = a1 if a1 > 0.0 else 0.0
-            o2 = a2 if a2 > 0.0 else 0.0
-            out = o0 * o0 + o1 * o1 + o2 * o2
-            if out > 0.0:
-                out = math.sqrt(out)
-                return out - m, cs(o0, q0) / out, cs(o1, q1) / out, cs(o2, q2) / out
-            if a0 >= a1 and a0 >= a2:
-                return a0 - m, cs(1.0, q0), 0.0, 0.0
-            if a1 >= a2:
-                return a1 - m, 0.0, cs(1.0, q1), 0.0
-            return a2 - m, 0.0, 0.0, cs(1.0, q2)
-        return sdf
+    def point_numbers(self) -> list[float]:
+        """c (3), the margin, h (3) (``box_sdf``; a 2-D box is a prism of infinite height)."""
+        return [*pad3(self.center), float(self.margin), *pad3(self.half_sizes, 1e300)]
 
     def describe(self) -> str:
         return f"box at {_fmt(self.center)} half sizes {_fmt(self.half_sizes)}{self._margin_text()}"
@@ -337,33 +318,24 @@ class Capsule(Obstacle):
 
     def _sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ab = self.b - self.a
-        s = np.clip((y - self.a) @ ab / max(float(ab @ ab), _EPS), 0.0, 1.0)   # (B,)
+        s = np.clip((y - self.a) @ ab / max(float(ab @ ab), EPS), 0.0, 1.0)   # (B,)
         q = y - (self.a + s[:, None] * ab)                                      # (B, d)
         dist = np.linalg.norm(q, axis=1)
-        n = q / np.maximum(dist, _EPS)[:, None]
-        if np.any(dist < _EPS):  # on the axis: any direction orthogonal to it
+        n = q / np.maximum(dist, EPS)[:, None]
+        if np.any(dist < EPS):  # on the axis: any direction orthogonal to it
             perp = np.eye(self.dim)[int(np.argmin(np.abs(ab)))]
-            perp = perp - (perp @ ab) / max(float(ab @ ab), _EPS) * ab
-            n[dist < _EPS] = perp / np.linalg.norm(perp)
+            perp = perp - (perp @ ab) / max(float(ab @ ab), EPS) * ab
+            n[dist < EPS] = perp / np.linalg.norm(perp)
         return dist - (self.radius + self.margin), n
 
-    def _point_sdf3(self) -> Callable[[float, float, float], tuple[float, float, float, float]]:
-        a0, a1, a2 = _pad3(self.a)
-        b0, b1, b2 = _pad3(self.b - self.a)
-        ab2 = max(b0 * b0 + b1 * b1 + b2 * b2, _EPS)
-        R = float(self.radius + self.margin)
-        e0, e1, e2 = _pad3(self._sdf(self._center()[None])[1][0])   # normal on the axis
+    point_sdf = staticmethod(capsule_sdf)
 
-        def sdf(y0: float, y1: float, y2: float) -> tuple[float, float, float, float]:
-            p0, p1, p2 = y0 - a0, y1 - a1, y2 - a2
-            s = (p0 * b0 + p1 * b1 + p2 * b2) / ab2
-            s = 0.0 if s < 0.0 else (1.0 if s > 1.0 else s)
-            q0, q1, q2 = p0 - s * b0, p1 - s * b1, p2 - s * b2
-            d = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
-            if d < _EPS:
-                return -R, e0, e1, e2
-            return d - R, q0 / d, q1 / d, q2 / d
-        return sdf
+    def point_numbers(self) -> list[float]:
+        """a (3), b - a (3), max(|b - a|^2, ``EPS``), radius + margin, the normal chosen on the axis (3)
+        (``capsule_sdf``)."""
+        b = pad3(self.b - self.a)
+        return [*pad3(self.a), *b, max(b[0] * b[0] + b[1] * b[1] + b[2] * b[2], EPS),
+                float(self.radius + self.margin), *pad3(self._sdf(self._center()[None])[1][0])]
 
     def describe(self) -> str:
         return f"capsule from {_fmt(self.a)} to {_fmt(self.b)} radius {self.radius:g}{self._margin_text()}"

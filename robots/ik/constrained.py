@@ -33,6 +33,7 @@ import daqp
 import numpy as np
 
 from robots.errors import RobotError
+from robots.ik.gains import check_gain, is_number
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
@@ -57,13 +58,10 @@ class QpGains:
     rotation_weight: float = 0.3
 
     def __post_init__(self) -> None:
-        if isinstance(self.mu, bool) or not isinstance(self.mu, (int, float)) or not 0 < self.mu < 1e6:
-            raise RobotError(f"QP IK gain mu must be a number > 0, got {self.mu!r}")
+        check_gain("QP IK", "mu", self.mu, "a number > 0", lambda v: 0 < v < 1e6)
         for name in ("posture_gain", "limit_margin", "rotation_weight"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 <= value < 1e6):
-                raise RobotError(f"QP IK gain {name} must be a number >= 0, got {value!r}")
-        if not 0 < self.limit_gain <= 1 or not 0 < self.speed_fraction <= 1:
+            check_gain("QP IK", name, getattr(self, name), "a number >= 0", lambda v: 0 <= v < 1e6)
+        if not all(is_number(v) and 0 < v <= 1 for v in (self.limit_gain, self.speed_fraction)):
             raise RobotError("QP IK gains limit_gain and speed_fraction must be in (0, 1]")
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.lapack import dposv, dpotrf, dsyev
 
-from robots.errors import RobotError
+from robots.ik.gains import check_gain
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
@@ -34,8 +34,7 @@ class DlsGains:
 
 def check_speed_fraction(v: object) -> None:
     """``RobotError`` unless v is a real number in (0, 1] (the gains' ``speed_fraction``)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < v <= 1.0:
-        raise RobotError(f"IK gain speed_fraction must be a number in (0, 1], got {v!r}")
+    check_gain("IK", "speed_fraction", v, "a number in (0, 1]", lambda x: 0.0 < x <= 1.0)
 
 
 class DlsBackend:

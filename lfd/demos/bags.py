@@ -16,8 +16,9 @@ A single bag is split into demos where the header stamps of consecutive messages
 ``GAP_S`` apart; in a directory, each bag is one demo (in sorted name order), not split. Times are
 the messages' header stamps (not the times the bag received them), each demo's starting at 0;
 positions are in metres in the message's frame (no transform is applied), and ROS quaternions
-(x, y, z, w) become (w, x, y, z). Demos of different lengths are resampled to the longest
-(``lfd.demos.resample``). Every bad input, a corrupt bag included, is a ``DemoError`` of one line.
+(x, y, z, w) become (w, x, y, z). The demos are recordings, cleaned up as a file's are
+(``lfd.demos.recording``: gaps, noise, standing still, pauses; demos of different lengths resampled to
+the longest). Every bad input, a corrupt bag included, is a ``DemoError`` of one line.
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from lfd.demos import MIN_SAMPLES, DemoSet, resample
+from lfd.demos.demoset import MIN_SAMPLES, DemoSet
+from lfd.demos.recording import recorded_set
 from lfd.errors import DemoError
 
 # s: pose streams are recorded at 10 Hz or faster (steps of 0.1 s or less), so even a few dropped
@@ -81,7 +83,7 @@ def load_bag(spec: str) -> DemoSet:
     -------
     DemoSet
         N demos of T poses named ``spec``: t (N, T) seconds, each demo's from 0; x (N, T, 3) metres;
-        q (N, T, 4) unit quaternions (w, x, y, z).
+        q (N, T, 4) unit quaternions (w, x, y, z); ``notes`` says what the clean-up did.
 
     Raises
     ------
@@ -119,9 +121,7 @@ def load_bag(spec: str) -> DemoSet:
             raise DemoError(f"{where}: demo {i} ({which}) has {n} sample{'s' * (n != 1)}, at least "
                             f"{MIN_SAMPLES} are needed{hint}")
     ts = [(s.ns[a:b] - s.ns[a]) / 1e9 for _, s, a, b in segments]
-    t, x, q = resample(ts, [s.x[a:b] for _, s, a, b in segments], [s.q[a:b] for _, s, a, b in segments], spec)
-    assert q is not None
-    return DemoSet(t, x, name=spec, q=q)
+    return recorded_set(ts, [s.x[a:b] for _, s, a, b in segments], [s.q[a:b] for _, s, a, b in segments], spec)
 
 
 def _parse(spec: str) -> _Spec:

@@ -1,23 +1,18 @@
-#!/usr/bin/env python
 """Speed: video frames per second of ``sim.render`` (offscreen GL, overlays and H.264 encoding).
 
 Runs a field (the ``tracking`` learner, trained in a moment) on ``--robot`` under three pushes
 (seeds 0, 1, 2), then writes, in interleaved repeats (so machine load hits each case alike):
-
-* ``single``: one video of one run, ``--size`` (default 640x480);
-* ``side``: one side-by-side video of the three runs, ``--side-size`` (default 1280x480, as
-  ``demo_arm.py --side-by-side``), three panels;
-* ``separate``: three videos, one per run, each the size of one panel of ``side``.
+``single``, one video of one run, ``--size`` (default 640x480); ``side``, one side-by-side video
+of the three runs, ``--side-size`` (default 1280x480, as ``demo_arm.py --side-by-side``), three
+panels; ``separate``, three videos, one per run, each the size of one panel of ``side``.
 
 Each case is timed end to end (``Experiment.render``: GL context, scene, overlays, encoding, file)
 and printed as frames per second of wall time (median and p95, i.e. the slowest 5%, over the
 repeats, and the first repeat, which pays for opening a GL context), and as CPU time per frame
 (this process, llvmpipe's threads included, plus ffmpeg): on a loaded machine the CPU time varies
-less than the wall time. ``side`` / ``separate`` is the time ratio of the
-side-by-side video to the three separate ones (target: <= 1); target for ``single``: >= 50
-fps at 640x480. Asserts nothing. Timings are wall clock: note the load average (printed).
-
-    MUJOCO_GL=egl python scripts/speed_render.py --repeats 5
+less than the wall time. ``side`` / ``separate`` is the time ratio of the side-by-side video to the
+three separate ones (target: <= 1); target for ``single``: >= 50 fps at 640x480. Asserts nothing.
+Timings are wall clock: note the load average (printed). Run with ``MUJOCO_GL=egl`` where EGL works.
 """
 
 from __future__ import annotations
@@ -25,22 +20,25 @@ from __future__ import annotations
 import argparse
 import os
 import resource
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _speed import run_main
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+import lfd
+import sim
+from lfd.errors import ConfigError
+from robots import load_robot
+from sim.parsing import names
+from sim.speed.timing import load
+from sim.speed.trained import demos_of
 
-import lfd  # noqa: E402
-import sim  # noqa: E402  (sets MUJOCO_GL before mujoco is imported)
-from robots import RobotError, load_robot  # noqa: E402
+__all__ = ["CASES", "add_arguments", "run"]
 
 CASES = ("single", "side", "separate")
+QUICK_SIZE = (64, 48)
 
 
 def size(text: str) -> tuple[int, int]:
@@ -74,37 +72,30 @@ def render_case(exp: sim.Experiment, runs: list[Any], case: str, folder: Path, s
     return time.perf_counter() - t0, cpu_seconds() - c0, n
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (exit 2)."""
-
-    def error(self, message: str) -> Any:
-        self.exit(2, f"speed_render: error: {message} (see --help)\n")
-
-
-def main() -> int:
-    ap = _Parser(description=__doc__.split("\n\n")[0])
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    """The robot, the demos, the video sizes, the cases, the repeats."""
     ap.add_argument("--robot", default="panda")
     ap.add_argument("--demos", default="spiral")
     ap.add_argument("--size", type=size, default=(640, 480), help="single video size (default 640x480)")
     ap.add_argument("--side-size", type=size, default=(1280, 480), help="side-by-side size (default 1280x480)")
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, of {', '.join(CASES)}")
     ap.add_argument("--repeats", type=int, default=3, help="interleaved repeats of every case")
-    args = ap.parse_args()
-    cases = [c.strip() for c in args.cases.split(",") if c.strip()]
+
+
+def run(args: argparse.Namespace) -> int:
+    """Render every case ``--repeats`` times, interleaved, and print the frame rates (module docstring);
+    ``--quick``: a short spiral, one repeat at 64x48 (side by side 192x48)."""
+    cases = names(args.cases)
     if not cases or any(c not in CASES for c in cases):
-        print(f"speed_render: error: --cases must name some of {', '.join(CASES)}", file=sys.stderr)
-        return 2
+        raise ConfigError(f"--cases must name some of {', '.join(CASES)}")
     if not 1 <= args.repeats <= 1000:
-        print("speed_render: error: --repeats must be in 1..1000", file=sys.stderr)
-        return 2
-    try:
-        demos = lfd.load_demos(args.demos)
-        field = lfd.train("tracking", demos, seed=0, progress=False)
-        exp = sim.Experiment(load_robot(args.robot, actuation="torque"), demos)
-        runs = [exp.run(field, "push", seed=s) for s in range(3)]
-    except (lfd.LfdError, sim.SimError, RobotError) as e:
-        print(f"speed_render: error: {e}", file=sys.stderr)
-        return 2
+        raise ConfigError("--repeats must be in 1..1000")
+    repeats, single, side = (1, QUICK_SIZE, (3 * QUICK_SIZE[0], QUICK_SIZE[1])) if args.quick else \
+        (args.repeats, args.size, args.side_size)
+    demos = demos_of(args)
+    field = lfd.train("tracking", demos, seed=0, progress=False)
+    exp = sim.Experiment(load_robot(args.robot, actuation="torque"), demos)
+    runs = [exp.run(field, "push", seed=s) for s in range(3)]
     print(f"robot {args.robot}, {len(runs[0].trace.frame_t)} frames per run at {exp.fps:g} fps, "
           f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}, {os.cpu_count()} CPUs")
     times: dict[str, list[float]] = {c: [] for c in cases}
@@ -113,17 +104,17 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         exp.render(runs[0], folder / "warmup.mp4", 64, 48)   # imports, fonts, ffmpeg lookup
-        for r in range(args.repeats):
+        for r in range(repeats):
             row = []
             for case in cases:
-                wall, used, n = render_case(exp, runs, case, folder, args.size, args.side_size)
+                wall, used, n = render_case(exp, runs, case, folder, single, side)
                 times[case].append(wall)
                 cpu[case].append(used)
                 frames[case] = n
                 row.append(f"{case} {n / wall:6.1f} fps {used / n * 1e3:5.1f} CPU ms/frame")
-            print(f"repeat {r + 1}: {'   '.join(row)}   (load average {os.getloadavg()[0]:.2f})")
-    sw, sh = args.side_size
-    label = {"single": f"single {args.size[0]}x{args.size[1]}", "side": f"side-by-side {sw}x{sh}, 3 panels",
+            print(f"repeat {r + 1}: {'   '.join(row)}   (load average {load():.2f})")
+    sw, sh = side
+    label = {"single": f"single {single[0]}x{single[1]}", "side": f"side-by-side {sw}x{sh}, 3 panels",
              "separate": f"3 separate {(sw // 3) // 2 * 2}x{sh // 2 * 2}"}
     print(f"\n{'case':36s} {'median fps':>10s} {'p95 fps':>8s} {'first fps':>10s} {'median s':>9s} "
           f"{'CPU ms/frame':>13s}")
@@ -138,7 +129,3 @@ def main() -> int:
         med = frames["single"] / float(np.median(times["single"]))
         print(f"single video: {med:.1f} fps ({'met' if med >= 50 else 'not met'}: target >= 50)")
     return 0
-
-
-if __name__ == "__main__":
-    run_main(main, "speed_render")

@@ -1,4 +1,3 @@
-#!/usr/bin/env python
 """Obstacle avoidance and moving goals in task space: what they cost and achieve. Prints, asserts nothing.
 
 1. Spiral and 5 LASA shapes, a contraction field trained with default options, a sphere on the
@@ -14,47 +13,53 @@
 4. Cost per control step with 3 obstacles (a sphere, a box, a capsule): ``point_fn`` of the
    avoiding field against the bare field's ``point_fn``, interleaved; median and p95 of each and of
    the extra per call, and the ratio. Wall clock: note the load average printed with it.
-
-Usage: python scripts/speed_obstacles.py [--shapes Angle,Sshape,...] [--starts 100] [--calls 20000]
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import time
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+import lfd
+from lfd.goal import shift_goal
+from lfd.obstacles import Box, Capsule, Obstacle, Sphere, avoid, starts_outside
+from sim.parsing import names
+from sim.speed.timing import load
 
-import lfd  # noqa: E402
-from lfd.goal import shift_goal  # noqa: E402
-from lfd.obstacles import Box, Capsule, Sphere, avoid, starts_outside  # noqa: E402
+__all__ = ["add_arguments", "cost", "on_path", "reach", "run"]
 
 SHAPES = ("Angle", "CShape", "GShape", "Sshape", "Worm")
 
 
 def extent_of(demos: lfd.DemoSet) -> float:
+    """The largest side of the demos' bounding box."""
     return float(np.max(np.ptp(demos.x.reshape(-1, demos.dim), axis=0)))
 
 
 def on_path(demos: lfd.DemoSet, fraction: float, radius: float) -> Sphere:
+    """A sphere of ``radius`` times the extent on the mean demo at ``fraction`` of its arc length."""
     x = demos.x.mean(axis=0)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(x, axis=0), axis=1))])
     return Sphere(x[np.searchsorted(s, fraction * s[-1])], radius * extent_of(demos))
 
 
 def length(y: np.ndarray) -> np.ndarray:
+    """Path lengths of paths y, shape (..., T, d): shape (...)."""
     return np.linalg.norm(np.diff(y, axis=-2), axis=-1).sum(axis=-1)
 
 
-def run_case(name: str, field, demos: lfd.DemoSet, obstacles, n: int, check=None) -> None:
-    f = avoid(field, obstacles)
+def reach(name: str, field: Any, demos: lfd.DemoSet, obstacles: Sequence[Obstacle], n: int,
+          check: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, samples: int = 401) -> None:
+    """Print what the avoiding field does from ``n`` starts outside the obstacles, rolled out over
+    4 demo durations on ``samples`` times (parts 1, 2)."""
+    f = avoid(field, list(obstacles))
     starts = starts_outside(f, demos, n)
-    t = np.linspace(0.0, 4.0 * float(demos.t[0, -1]), 401)
+    t = np.linspace(0.0, 4.0 * float(demos.t[0, -1]), samples)
     t0 = time.perf_counter()
     y = f.rollout(starts, t)
     wall = time.perf_counter() - t0
@@ -74,7 +79,9 @@ def run_case(name: str, field, demos: lfd.DemoSet, obstacles, n: int, check=None
           f"  blocked {blk} ({int(blocked.sum())} paths)  rollout {wall:.1f} s", flush=True)
 
 
-def time_calls(fa, fb, x: np.ndarray, calls: int) -> tuple[np.ndarray, np.ndarray]:
+def interleaved_us(fa: Callable[[np.ndarray], Any], fb: Callable[[np.ndarray], Any], x: np.ndarray,
+                   calls: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-call times in us of fa(x) and fb(x), called alternately ``calls`` times: shape (calls,) each."""
     ta, tb = np.empty(calls), np.empty(calls)
     pc = time.perf_counter
     for i in range(calls):
@@ -87,47 +94,56 @@ def time_calls(fa, fb, x: np.ndarray, calls: int) -> tuple[np.ndarray, np.ndarra
     return ta * 1e6, tb * 1e6
 
 
-def cost(name: str, field, obstacles, x: np.ndarray, calls: int) -> None:
-    bare, mod = field.single_point_evaluator(), avoid(field, obstacles).single_point_evaluator()
+def cost(name: str, field: Any, obstacles: Sequence[Obstacle], x: np.ndarray, calls: int) -> None:
+    """Print the single-point cost of the avoiding field against the bare one at x, shape (d,) (part 4)."""
+    bare, mod = field.single_point_evaluator(), avoid(field, list(obstacles)).single_point_evaluator()
     for _ in range(2000):
         bare(x), mod(x)
-    tb, tm = time_calls(bare, mod, x, calls)
+    tb, tm = interleaved_us(bare, mod, x, calls)
     extra = tm - tb
     print(f"{name:<28} bare median {np.median(tb):6.2f} us p95 {np.percentile(tb, 95):6.2f} | with 3 obstacles "
           f"median {np.median(tm):6.2f} us p95 {np.percentile(tm, 95):6.2f} | extra median {np.median(extra):6.2f} us "
           f"p95 {np.percentile(extra, 95):6.2f} | ratio {np.median(tm) / np.median(tb):.2f}x  "
-          f"(load average {os.getloadavg()[0]:.1f})", flush=True)
+          f"(load average {load():.1f})", flush=True)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--shapes", default=",".join(SHAPES))
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--shapes``, ``--starts``, ``--calls``."""
+    ap.add_argument("--shapes", default=",".join(SHAPES), help="LASA shapes besides the spiral, comma-separated")
     ap.add_argument("--starts", type=int, default=100)
     ap.add_argument("--calls", type=int, default=20000)
-    args = ap.parse_args()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Parts 1-4 (module docstring); ``--quick``: the spiral alone, 5 starts, rollouts on a tenth of the
+    times, 200 calls, 2 training iterations."""
     torch.set_num_threads(1)
-    n = args.starts
+    n, calls = (5, 200) if args.quick else (args.starts, args.calls)
+    grid = 10 if args.quick else 1   # rollouts on every grid-th time
+    training: dict[str, Any] = {"iterations": 2} if args.quick else {}
 
     print("== 1. obstacle on the demonstrated path (contraction field, default options)")
     fields = {}
-    for spec in ["spiral"] + [f"lasa:{s}" for s in args.shapes.split(",") if s]:
+    for spec in ["spiral"] + ([] if args.quick else [f"lasa:{s}" for s in names(args.shapes)]):
         demos = lfd.load_demos(spec)
         t0 = time.perf_counter()
-        field = lfd.train("contraction", demos, seed=0)
+        field = lfd.train("contraction", demos, seed=0, **training)
         print(f"   trained {spec} in {time.perf_counter() - t0:.1f} s", flush=True)
         fields[spec] = (field, demos)
-        run_case(spec, field, demos, [on_path(demos, 0.45, 0.08)], n)
+        reach(spec, field, demos, [on_path(demos, 0.45, 0.08)], n, samples=400 // grid + 1)
 
     print("== 2. two overlapping obstacles; a moving obstacle (spiral)")
     field, demos = fields["spiral"]
     a = on_path(demos, 0.4, 0.06)
-    run_case("spiral, sphere + box overlap", field, demos, [a, Box(a.center + [0.08, 0.05], [0.07, 0.05])], n)
+    reach("spiral, sphere + box overlap", field, demos, [a, Box(a.center + [0.08, 0.05], [0.07, 0.05])], n,
+          samples=400 // grid + 1)
     tc = 0.3 * float(demos.t[0, -1])          # the sphere crosses the nominal path when the robot is there
     meet = field.rollout(demos.x[:, 0].mean(axis=0), np.linspace(0.0, tc, 200))[-1]
     v = np.array([-0.15, 0.1])
     moving = Sphere(meet - tc * v, 0.07 * extent_of(demos), velocity=v)
-    run_case("spiral, moving sphere", field, demos, [moving], n,
-             check=lambda y, t: np.stack([moving.gamma(y[:, j], float(tj)) for j, tj in enumerate(t)], axis=1))
+    reach("spiral, moving sphere", field, demos, [moving], n,
+          check=lambda y, t: np.stack([moving.gamma(y[:, j], float(tj)) for j, tj in enumerate(t)], axis=1),
+          samples=400 // grid + 1)
 
     print("== 3. goal moved by 20% of the extent at half the demo duration (blend 0.5 s)")
     for spec, (field, demos) in fields.items():
@@ -135,7 +151,7 @@ def main() -> None:
         dx = np.array([0.2 * ext, 0.0])
         T = float(demos.t[0, -1])
         moved = shift_goal(field, 0.5 * T, dx, blend=0.5)
-        t = np.linspace(0.0, 5.0 * T, 1001)
+        t = np.linspace(0.0, 5.0 * T, 1000 // grid + 1)
         y, y0 = moved.rollout(demos.x[:, 0], t), field.rollout(demos.x[:, 0], t)
         sp = np.linalg.norm(np.diff(y, axis=1), axis=2).max() / (t[1] - t[0])
         sp0 = np.linalg.norm(np.diff(y0, axis=1), axis=2).max() / (t[1] - t[0])
@@ -147,14 +163,11 @@ def main() -> None:
     field, demos = fields["spiral"]
     obs2 = [on_path(demos, 0.45, 0.08), Box(demos.goal + [0.5, 0.5], [0.05, 0.1]),
             Capsule(demos.goal + [-0.6, 0.4], demos.goal + [-0.4, 0.6], 0.05)]
-    cost("2-D contraction field", field, obs2, demos.x[0, 0], args.calls)
+    cost("2-D contraction field", field, obs2, demos.x[0, 0], calls)
     d3 = lfd.load_demos("spiral3d")
     node3 = lfd.train("node", d3, seed=0, iterations=2)   # timing only: the cost does not depend on training
     g = d3.goal
     obs3 = [Sphere(g + [0.3, 0.2, 0.1], 0.1), Box(g + [-0.4, 0.2, 0.1], [0.1, 0.1, 0.2]),
             Capsule(g + [0.2, -0.4, 0.0], g + [0.4, -0.4, 0.3], 0.05)]
-    cost("3-D NODE field", node3, obs3, d3.x[0, 0], args.calls)
-
-
-if __name__ == "__main__":
-    main()
+    cost("3-D NODE field", node3, obs3, d3.x[0, 0], calls)
+    return 0

@@ -1,0 +1,48 @@
+"""What a learned field states about its own contraction, for ``lfd.certify`` and
+``lfd.pose_contraction`` to check: ``Guarantees``, the defaults of every ``lfd.field.VelocityField``
+(nothing stated). A learner that states more overrides them: ``lfd.field.ContractingField`` (a rate,
+metric bounds and a Lipschitz bound), the contraction learner's field (its metric, Eq. (C1), and its
+flow in closed form, Eq. (C4)) and the NODE's (a bound of Lip(J_f) from its weights)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from torch import Tensor
+
+__all__ = ["Guarantees"]
+
+
+class Guarantees:
+    """Nothing stated: each answer is None (``lfd.certify`` then checks the identity metric at its own
+    rate, and rollouts integrate)."""
+
+    @property
+    def rate(self) -> float | None:
+        """The contraction rate the field is built with, 1/s; None: none."""
+        return None
+
+    @property
+    def metric_bounds(self) -> tuple[float, float] | None:
+        """(a, b) with a I <= M(x) <= b I for every x in R^d, user units; None: no metric stated."""
+        return None
+
+    @property
+    def lipschitz_bound(self) -> float | None:
+        """An upper bound of the field's Lipschitz constant in x, 1/s; None: none stated."""
+        return None
+
+    def contraction_metric(self) -> Callable[[Tensor], Tensor] | None:
+        """M_n: x_n (B, d) -> (B, d, d), the metric the field is built to contract in (normalised units,
+        differentiable; ``lfd.certify`` checks Eq. (C1) in it); None: none (the identity is checked)."""
+        return None
+
+    def jacobian_lipschitz_bound(self) -> float | None:
+        """An upper bound of Lip(J_f) from the weights; None: none known."""
+        return None
+
+    def closed_form_rollout(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray | None:
+        """The exact flow from x0, shape (B, d), over t, shape (T,): (B, T, d) where the learner has it
+        in closed form; None: integrate instead (``rollout``)."""
+        return None

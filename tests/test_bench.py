@@ -1,25 +1,29 @@
-"""The LASA benchmark harness: protocol, DMP baseline, resumable parallel runner, report.
+"""The LASA suite: protocol, DMP baseline, resumable parallel runner, report, and the held-out split.
 
-One ``--quick`` run (contraction and dmp, 3 shapes, 2 workers) is shared by the module; a second
-run checks resume, a third (one cell, in-process) checks determinism.
+One in-sample ``--quick`` run (contraction and dmp, 3 shapes, 2 workers) is shared by the module; a
+second run checks resume, a third (one cell, in-process) checks determinism. One run of both splits
+on one shape checks the held-out split: a field per demo trained without it, run toward its own end.
 """
 
 from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from bench_runs import bench_run, refused
 from records import results
 
 from lfd.bench import protocol as P
 from lfd.bench.dmp import fit_dmp, make_config
-from lfd.bench.evaluate import METRICS
+from lfd.bench.lasa import METRICS, QUICK_UNITS, LasaSuite
+from lfd.bench.runner import load_arrays
 from lfd.cli import main
-from lfd.demos import lasa
+from lfd.demos import LASA_SHAPES, lasa
 from lfd.errors import ConfigError
 from lfd.io import finite_or_none
 from lfd.metrics import rmse
@@ -28,7 +32,11 @@ from lfd.metrics import rmse
 # (a bound with room above what it scores; the full benchmark's numbers: reports/lasa.md)
 ANGLE_DTW_CONTRACTION_MAX = 600.0
 ANGLE_RMSE_DMP_MAX = 3.5          # mm, the DMP fitted to Angle's mean demo (just above what it scores)
-QUICK_CELLS = [f"{learner}__{shape}__seed0" for learner in ("contraction", "dmp") for shape in P.QUICK_SHAPES]
+QUICK_CELLS = [f"{learner}__{shape}__seed0" for learner in ("contraction", "dmp") for shape in QUICK_UNITS]
+# mm: a held-out reproduction's last sample from the end of the demo it was run toward (just above what
+# each reaches on Angle at --quick; every LASA demo ends at the origin, so the own end and the training
+# goal coincide there: tests/test_bench_robottasks.py tells them apart)
+HELD_OUT_END_MM = {"contraction": 2.0, "dmp": 0.5}
 
 
 # ---------------------------------------------------------------- protocol and baseline
@@ -51,35 +59,70 @@ def test_starts_are_seeded_per_shape_and_placed_as_documented() -> None:
 
 
 def test_protocol_and_option_errors_are_config_errors() -> None:
-    assert P.resolve_shapes("all") == list(P.LASA_SHAPES) and len(P.resolve_shapes("all")) == 30
-    assert P.resolve_shapes("all", quick=True) == ["Angle", "Sine", "GShape"]
-    assert P.resolve_shapes("Sine,Angle,Sine") == ["Sine", "Angle"]
-    with pytest.raises(ConfigError, match="Circle"):
-        P.resolve_shapes("Angle,Circle")
-    with pytest.raises(ConfigError, match="train-demos"):
-        P.LasaProtocol(train_demos=0)
-    with pytest.raises(ConfigError, match="unknown option"):
-        make_config(weights=5)
-    with pytest.raises(ConfigError, match="n_weights_per_dim"):
-        make_config(n_weights_per_dim=0)
-    assert P.stable_hash(P.LasaProtocol().to_dict()) != P.stable_hash(P.LasaProtocol(train_demos=5).to_dict())
+    suite = LasaSuite(P.LasaProtocol())
+    assert suite.resolve_units("all") == list(LASA_SHAPES) and len(suite.resolve_units("all")) == 30
+    assert suite.resolve_units("all", quick=True) == ["Angle", "Sine", "GShape"]
+    assert suite.resolve_units("Sine,Angle,Sine") == ["Sine", "Angle"]
+    refusals: list[tuple[Callable[[], Any], str]] = [
+        (lambda: suite.resolve_units("Angle,Circle"), "Circle"), (lambda: P.LasaProtocol(dtw_step=0), "dtw_step"),
+        (lambda: make_config(weights=5), "unknown option"), (lambda: make_config(n_weights_per_dim=0), "n_weights")]
+    for call, message in refusals:
+        with pytest.raises(ConfigError, match=message):
+            call()
+    assert P.stable_hash(P.LasaProtocol().to_dict()) != P.stable_hash(P.LasaProtocol(dtw_step=2).to_dict())
+    cells = suite.cells(["dmp"], {"dmp": ["Angle"]}, [0], {"dmp": {}}, ["in-sample", "held-out"])
+    assert [c.stem for c in cells] == ["dmp__Angle__seed0"] + [f"dmp__Angle__seed0__out{i}" for i in range(7)]
+    assert len({c.hash for c in cells}) == 8
     assert finite_or_none({"a": [1.0, float("inf")], "b": float("nan")}) == {"a": [1.0, None], "b": None}
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--shapes", "Circle"], "Circle"),
-    (["--learner", "gp"], "unknown learner"),
-    (["--train-demos", "9"], "train-demos"),
-    (["--option", "contraction.nope=1"], "unknown option"),
-    (["--option", "rate=1"], "LEARNER.KEY=VALUE"),
-])
-def test_cli_rejects_bad_input_with_exit_2(argv: list[str], message: str, tmp_path: Path,
-                                           capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["bench", "lasa", *argv, "--json", str(tmp_path / "r.json"),
-                 "--report", str(tmp_path / "r.md")])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and message in err and len(err.splitlines()) == 1
-    assert not (tmp_path / "r.json").exists()
+BAD_INPUT = [   # a command line after ``lfd bench``, and what its one line of error says
+    ("lasa --shapes Circle", "Circle"),
+    ("lasa --learner gp", "unknown learner"),
+    ("lasa --split some", "unknown split"),
+    ("lasa --option contraction.nope=1", "unknown option"),
+    ("lasa --option rate=1", "LEARNER.KEY=VALUE"),
+    ("robottasks --tasks nosuchtask", "nosuchtask"),
+    ("robottasks --learner gp", "unknown learner"),
+    ("robottasks --perturbed-starts -1", "perturbed_starts"),
+    ("robottasks --option dmp.int_dt=0", "int_dt"),
+    ("lasa --learner dmp --executor dask", "invalid choice"),
+    ("lasa --learner dmp --executor ray --address nohost", "HOST:PORT"),
+    ("lasa --learner dmp --executor ray --address 10.0.0.1:99999", "HOST:PORT"),
+    ("lasa --learner dmp --address 10.0.0.1:6379", "needs --executor ray"),
+    ("lasa --learner dmp --executor ray --address 127.0.0.1:1", "no Ray cluster reachable"),   # probed, no ray.init
+    ("lasa --learner dmp --workers 100000", "--workers"),
+]
+
+
+REPORT_BAD_INPUT = [   # the same for the report commands, their outputs in {out}
+    ("comparison --out {out} --node-iterations 0", "--node-iterations must be >= 1"),
+    ("tradeoff --out {out}/t.md --shapes Angle,Circle", "unknown LASA shape(s) Circle"),
+    ("tradeoff --out {out}/t.md --workers 0", "--workers must be >= 1"),
+    ("obstacles --report {out}/o.md --cache {out}/cells --placements 0", "placements must be between 1 and 10000"),
+]
+
+
+@pytest.mark.parametrize("line, message", BAD_INPUT + REPORT_BAD_INPUT)
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(line: str, message: str, tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["bench", *line.format(out=tmp_path / "out").split()]
+    assert message in refused(argv, tmp_path, capsys, outputs="{out}" not in line)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_every_registered_learner_and_the_dmp_are_benchmarked_and_quick() -> None:
+    """``all`` is the registry's learners and the DMP: a learner added to ``lfd.learners`` runs in
+    every suite; --quick caps its iterations unless the suite names its quick options."""
+    from lfd.commands.bench import resolve_learners
+    from lfd.learners import LEARNERS
+
+    assert resolve_learners("all") == [*LEARNERS, "dmp"] and resolve_learners("dmp,node") == ["node", "dmp"]
+    suite = LasaSuite(P.LasaProtocol())
+    assert suite.quick("contraction") == {"iterations": 60} and suite.quick("dmp") == {}
+    for learner in LEARNERS:
+        iterations = suite.config(learner, {}).get("iterations")
+        assert iterations is None or suite.quick(learner)["iterations"] <= min(iterations, 200), learner
 
 
 def test_dmp_reproduces_angle_and_stays_at_the_goal() -> None:
@@ -99,16 +142,12 @@ def test_dmp_reproduces_angle_and_stays_at_the_goal() -> None:
 
 # ---------------------------------------------------------------- the quick run
 
-def _argv(d: Path, *extra: str) -> list[str]:
-    return ["bench", "lasa", "--learner", "contraction,dmp", "--quick", "--workers", "2",
-            "--json", str(d / "r.json"), "--report", str(d / "lasa.md"), *extra]
+QUICK_ARGV = ["bench", "lasa", "--learner", "contraction,dmp", "--quick", "--split", "in-sample", "--workers", "2"]
 
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    d = tmp_path_factory.mktemp("lasa")
-    assert main(_argv(d)) == 0
-    return {"dir": d, "json": json.loads((d / "r.json").read_text()), "md": (d / "lasa.md").read_text()}
+    return bench_run(tmp_path_factory.mktemp("lasa"), QUICK_ARGV, "lasa.md")
 
 
 def test_report_has_a_row_per_shape_mean_median_and_figures(quick: dict[str, Any]) -> None:
@@ -117,7 +156,7 @@ def test_report_has_a_row_per_shape_mean_median_and_figures(quick: dict[str, Any
     for learner in ("contraction", "dmp"):
         section = md.split(f"## Per shape: {learner}")[1].split("## ")[0]
         rows = [line for line in section.splitlines() if line.startswith("| ")][1:]
-        assert [r.split("|")[1].strip() for r in rows] == [*P.QUICK_SHAPES, "**Mean**", "**Median**"]
+        assert [r.split("|")[1].strip() for r in rows] == [*QUICK_UNITS, "**Mean**", "**Median**"]
         assert all(len(r.split("|")) == len(rows[0].split("|")) for r in rows)
         assert f"![LASA {learner}](figures/lasa_{learner}.png)" in section
         fig = d / "figures" / f"lasa_{learner}.png"
@@ -126,26 +165,28 @@ def test_report_has_a_row_per_shape_mean_median_and_figures(quick: dict[str, Any
     for learner in ("contraction", "dmp"):
         assert re.search(rf"^\| {learner} \| 3 \|", summary, re.M)
     assert "## Targets (contraction learner)" in md and "## Reading" in md
+    assert "## In-sample and held-out" not in md and "Held-out demos" not in md      # not run
 
 
 def test_results_json_schema(quick: dict[str, Any]) -> None:
     r = quick["json"]
-    assert {"protocol", "protocol_hash", "learners", "shapes", "seeds", "quick", "summary", "run",
+    assert {"suite", "protocol", "protocol_hash", "learners", "shapes", "splits", "seeds", "quick", "summary", "run",
             "results"} <= set(r)
-    assert r["shapes"] == list(P.QUICK_SHAPES) and r["seeds"] == [0] and r["quick"] is True
-    assert r["protocol"] == P.LasaProtocol().to_dict()
+    assert r["shapes"] == list(QUICK_UNITS) and r["seeds"] == [0] and r["quick"] is True
+    assert r["protocol"] == P.LasaProtocol().to_dict() and r["splits"] == ["in-sample"]
     assert [f"{c['learner']}__{c['shape']}__seed{c['seed']}" for c in r["results"]] == QUICK_CELLS
     for c in r["results"]:
-        assert set(c["train"]) == set(METRICS) and c["test"] is None
-        assert all(isinstance(v, float) and v >= 0 for v in c["train"].values())
+        assert set(c["metrics"]) == set(METRICS) and c["split"] == "in-sample" and c["fold"] is None
+        assert all(isinstance(v, float) and v >= 0 for v in c["metrics"].values())
         assert all(len(v) == 7 for v in c["per_demo"].values())
-        assert c["train_demos"] == list(range(7)) and c["test_demos"] == []
+        assert c["train_demos"] == c["scored_demos"] == list(range(7))
         assert c["convergence"]["n_starts"] == 127 and c["convergence"]["radius_mm"] == 1.0
         assert c["train_time_s"] > 0 and c["step_time_us"] > 0
     for learner in ("contraction", "dmp"):
         s = r["summary"][learner]
-        assert s["shapes"] == 3 and set(s["train"]) == set(METRICS)
-        assert {"mean", "median"} == set(s["train"]["dtw"])
+        assert s["held-out"] is None and s["held-out / in-sample"] is None
+        assert s["in-sample"]["units"] == 3 and set(s["in-sample"]["metrics"]) == set(METRICS)
+        assert {"mean", "median"} == set(s["in-sample"]["metrics"]["dtw"])
     assert r["run"]["computed"] == 6 and r["run"]["cached"] == 0
 
 
@@ -155,7 +196,7 @@ def test_contraction_converges_from_every_start_and_fits_angle(quick: dict[str, 
         assert c["convergence"]["rate"] == 1.0, (shape, c["convergence"])
         assert c["integrators"] == {"reproduce": "dopri5", "rollouts": "dopri5", "grid": "dopri5"}
         assert c["convergence"]["spurious_grid"] == 0.0 and c["convergence"]["n_grid"] == 35 * 35
-    assert cells["Angle"]["train"]["dtw"] < ANGLE_DTW_CONTRACTION_MAX
+    assert cells["Angle"]["metrics"]["dtw"] < ANGLE_DTW_CONTRACTION_MAX
     dmp = {c["shape"]: c for c in quick["json"]["results"] if c["learner"] == "dmp"}
     assert all(c["convergence"]["rate"] == 1.0 for c in dmp.values())
 
@@ -170,13 +211,12 @@ def test_second_run_resumes_and_recomputes_only_a_missing_cell(quick: dict[str, 
 
     mtimes = contraction_mtimes()
     assert len(mtimes) == 6
-    assert main(_argv(d)) == 0
-    r = json.loads((d / "r.json").read_text())
+    r = bench_run(d, QUICK_ARGV, "lasa.md")["json"]
     assert r["run"]["computed"] == 1 and r["run"]["cached"] == 5
     assert contraction_mtimes() == mtimes                   # no contraction cell was retrained
     assert (cache / "dmp__Sine__seed0.json").is_file()
-    before = {f"{c['learner']}{c['shape']}": c["train"] for c in quick["json"]["results"]}
-    after = {f"{c['learner']}{c['shape']}": c["train"] for c in r["results"]}
+    before = {f"{c['learner']}{c['shape']}": c["metrics"] for c in quick["json"]["results"]}
+    after = {f"{c['learner']}{c['shape']}": c["metrics"] for c in r["results"]}
     assert after.keys() == before.keys()                    # the DMP is deterministic too (another
     for k in after:                                         # process: equal to a tolerance)
         x, y = _numbers(after[k]), _numbers(before[k])
@@ -190,18 +230,82 @@ def test_same_seed_gives_the_same_numbers(quick: dict[str, Any], tmp_path: Path)
     worker and the in-process path run one BLAS / OpenMP thread, ``lfd.threads``)."""
     runs = []
     for name in ("a", "b"):
-        argv = ["bench", "lasa", "--learner", "contraction", "--quick", "--shapes", "Angle", "--workers", "1",
-                "--json", str(tmp_path / f"{name}.json"), "--report", str(tmp_path / f"{name}.md")]
+        argv = ["bench", "lasa", "--learner", "contraction", "--quick", "--shapes", "Angle", "--split", "in-sample",
+                "--workers", "1", "--json", str(tmp_path / f"{name}.json"), "--report", str(tmp_path / f"{name}.md")]
         assert main(argv) == 0
         runs.append(json.loads((tmp_path / f"{name}.json").read_text())["results"][0])
     first = next(c for c in quick["json"]["results"]
                  if c["learner"] == "contraction" and c["shape"] == "Angle")
     assert runs[0]["hash"] == first["hash"] and runs[0]["config"] == first["config"]
-    for key in ("train", "per_demo", "convergence"):
+    for key in ("metrics", "per_demo", "convergence"):
         a, b, c = _numbers(runs[0][key]), _numbers(runs[1][key]), _numbers(first[key])
         assert a == b, key
         assert a.keys() == c.keys() and len(a) > 3
     assert results(runs[0]) == results(first)
+
+
+# ---------------------------------------------------------------- the held-out split
+
+@pytest.fixture(scope="module")
+def both(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """Both splits of contraction and the DMP on Angle (--quick)."""
+    argv = ["bench", "lasa", "--learner", "contraction,dmp", "--quick", "--shapes", "Angle", "--workers", "2"]
+    return bench_run(tmp_path_factory.mktemp("lasa_both"), argv, "both.md")
+
+
+def test_held_out_trains_a_field_per_demo_without_it_and_runs_it_to_its_own_end(both: dict[str, Any]) -> None:
+    r, demos = both["json"], lasa("Angle")
+    suite = LasaSuite(P.LasaProtocol())
+    assert r["splits"] == ["in-sample", "held-out"] and r["run"]["computed"] == 16
+    for learner in ("contraction", "dmp"):
+        held = sorted((c for c in r["results"] if c["learner"] == learner and c["split"] == "held-out"),
+                      key=lambda c: c["fold"])
+        assert [c["fold"] for c in held] == list(range(7))
+        for c in held:
+            i = c["fold"]
+            assert c["scored_demos"] == [i] and c["train_demos"] == [k for k in range(7) if k != i]
+            assert set(c["metrics"]) == set(METRICS) and all(len(v) == 1 for v in c["per_demo"].values())
+            assert all(np.isfinite(v) and v >= 0 for v in c["metrics"].values()), (learner, i)
+            y = load_arrays(both["dir"] / ".cache" / "r", suite.record_stem(c))["reproduction"]
+            assert y.shape == (1, demos.n_samples, 2)
+            np.testing.assert_allclose(y[0, 0], demos.x[i, 0], atol=1e-9)           # from its own start
+            end = np.linalg.norm(y[0, -1] - demos.x[i, -1])                        # to its own end
+            assert end < HELD_OUT_END_MM[learner], (learner, i, end)
+        s = r["summary"][learner]
+        assert s["held-out"]["units"] == 1 and s["in-sample"]["units"] == 1
+        c = s["held-out / in-sample"]["dtw"]
+        mean = float(np.mean([h["metrics"]["dtw"] for h in held]))
+        assert c["held-out"] == pytest.approx(mean, rel=1e-12) and c["ratio"] == pytest.approx(mean / c["in-sample"])
+
+
+def test_report_shows_in_sample_and_held_out_side_by_side(both: dict[str, Any]) -> None:
+    md, s = both["md"], both["json"]["summary"]
+    section = md.split("## In-sample and held-out")[1].split("## ")[0]
+    assert "| learner | shapes | DTW (sum, mm) in-sample | held-out | ratio | RMSE (mm) in-sample |" in section
+    for learner in ("contraction", "dmp"):
+        c = s[learner]["held-out / in-sample"]
+        row = next(line for line in section.splitlines() if line.startswith(f"| {learner} |"))
+        cols = [x.strip() for x in row.split("|")[1:-1]]
+        assert cols[1] == "1" and cols[2:5] == [f"{c['dtw']['in-sample']:.0f}", f"{c['dtw']['held-out']:.0f}",
+                                                 f"{c['dtw']['ratio']:.2f}"]
+        per = md.split(f"## Per shape: {learner}")[1].split("## ")[0]
+        assert f"Held-out demos, {learner}:" in per and "| Angle |" in per.split("Held-out demos")[1]
+    assert "## Held-out demos (mean / median over shapes)" in md and "Held out (each demo scored by a model" in md
+
+
+def test_tradeoff_reads_the_nodes_in_sample_dtw_from_results_old_and_new(tmp_path: Path) -> None:
+    """``lfd bench tradeoff`` puts the NODE's DTW beside its own: from the in-sample records of a
+    results JSON, or from the ``train`` entry of results written before the held-out split."""
+    from lfd.bench.tradeoff import node_dtws
+
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps({"results": [
+        {"learner": "node", "shape": "Angle", "split": "in-sample", "metrics": {"dtw": 1.0}},
+        {"learner": "node", "shape": "Angle", "split": "held-out", "fold": 0, "metrics": {"dtw": 9.0}},
+        {"learner": "node", "shape": "Sine", "train": {"dtw": 2.0}},
+        {"learner": "dmp", "shape": "GShape", "split": "in-sample", "metrics": {"dtw": 3.0}}]}))
+    assert node_dtws(path) == {"Angle": 1.0, "Sine": 2.0}
+    assert node_dtws(tmp_path / "none.json") is None
 
 
 def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
@@ -216,23 +320,6 @@ def _numbers(obj: Any, prefix: str = "") -> dict[str, float]:
 # ---------------------------------------------------------------- the Ray executor
 
 # on a Ray cluster: tests/test_ray_cluster.py
-
-
-@pytest.mark.parametrize("argv, message", [
-    (["--executor", "dask"], "invalid choice"),
-    (["--executor", "ray", "--address", "nohost"], "HOST:PORT"),
-    (["--executor", "ray", "--address", "10.0.0.1:99999"], "HOST:PORT"),
-    (["--address", "10.0.0.1:6379"], "needs --executor ray"),
-    (["--executor", "ray", "--address", "127.0.0.1:1"], "no Ray cluster reachable"),   # probed, no ray.init
-    (["--workers", "100000"], "--workers"),
-])
-def test_bad_executor_options_are_one_line_exit_2(argv: list[str], message: str, tmp_path: Path,
-                                                  capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["bench", "lasa", "--learner", "dmp", *argv, "--json", str(tmp_path / "r.json"),
-                 "--report", str(tmp_path / "r.md")])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and message in err and len(err.splitlines()) == 1, err
-    assert not (tmp_path / "r.json").exists()
 
 
 @pytest.mark.parametrize("mode, error, stderr, message", [

@@ -1,25 +1,25 @@
-"""``lfd bench robottasks``: the pose benchmark's protocol, the Cartesian DMP baseline, the command.
+"""``lfd bench robottasks``: the pose suite's protocol, the Cartesian DMP baseline, the command.
 
-One ``--quick`` run (tracking and the DMP, one task, 1 perturbed start per demo, 2 workers) is shared
-by the module; a second run checks that it resumes. (The contraction learner's and the NODE's rollouts
-go through the same ``PoseFieldModel`` as the tracking field's; they are left out to keep the module
-fast on a 2-core machine.)
+One ``--quick`` run of both splits (tracking and the DMP, one task, 1 perturbed start per demo, 2
+workers) is shared by the module; a second run checks that it resumes. (The contraction learner's and
+the NODE's rollouts go through the same ``lfd.bench.fields`` code and ``POSES`` states as the tracking
+field's; they are left out to keep the module fast on a 2-core machine.)
 """
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from bench_runs import bench_run
 from scipy.spatial.distance import cdist
 
 from lfd.bench import robottasks as rt
 from lfd.bench.dmp import fit_cartesian_dmp, make_cartesian_config, mean_pose_demo
-from lfd.cli import main
+from lfd.bench.runner import run_cells
 from lfd.demos import ROBOTTASKS, robottasks
 from lfd.errors import ConfigError, DemoError
 from lfd.metrics import dtw, dtw_path
@@ -30,6 +30,10 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 TASK = "scoop"
 LEARNERS = ("tracking", "dmp")
 CELLS = [f"{learner}__{TASK}__seed0" for learner in LEARNERS]
+SUITE = rt.RobotTasksSuite(rt.RobotTasksProtocol())
+# a held-out reproduction's last pose from the end of the demo it was run toward (mm, degrees; just
+# above what tracking and the DMP reach on scoop at --quick)
+HELD_OUT_END_MM, HELD_OUT_END_DEG = 2.0, 1.0
 # The Cartesian DMP against the mean demo it was fitted to, from the mean demo's start (just above
 # what it scores on scoop with the library's int_dt)
 DMP_MEAN_MAX_MM, DMP_MEAN_RMS_MM, DMP_MEAN_MAX_DEG = 6.0, 2.5, 0.5
@@ -75,11 +79,11 @@ def test_dtw_path_is_the_alignment_of_lfd_metrics_dtw() -> None:
 
 
 def test_protocol_and_option_errors_are_config_errors() -> None:
-    assert rt.resolve_tasks("all") == list(ROBOTTASKS) and len(ROBOTTASKS) == 9
-    assert rt.resolve_tasks("all", quick=True) == list(rt.QUICK_TASKS)
-    assert rt.resolve_tasks("scoop,pouring,scoop") == ["scoop", "pouring"]
+    assert SUITE.resolve_units("all") == list(ROBOTTASKS) and len(ROBOTTASKS) == 9
+    assert SUITE.resolve_units("all", quick=True) == list(rt.QUICK_UNITS)
+    assert SUITE.resolve_units("scoop,pouring,scoop") == ["scoop", "pouring"]
     with pytest.raises(ConfigError, match="nosuch"):
-        rt.resolve_tasks("scoop,nosuch")
+        SUITE.resolve_units("scoop,nosuch")
     with pytest.raises(ConfigError, match="perturbed_starts"):
         rt.RobotTasksProtocol(perturbed_starts=-1)
     with pytest.raises(ConfigError, match="perturb_angle_deg"):
@@ -88,8 +92,8 @@ def test_protocol_and_option_errors_are_config_errors() -> None:
         make_cartesian_config(int_dt=0)
     with pytest.raises(ConfigError, match="unknown option"):
         make_cartesian_config(weights=5)
-    a, b = rt.TaskCell.make("dmp", TASK, 0, {}, rt.RobotTasksProtocol()), \
-        rt.TaskCell.make("dmp", TASK, 0, {}, rt.RobotTasksProtocol(perturbed_starts=2))
+    a = SUITE.cell("dmp", TASK, 0, None, {})
+    b = rt.RobotTasksSuite(rt.RobotTasksProtocol(perturbed_starts=2)).cell("dmp", TASK, 0, None, {})
     assert a.hash != b.hash and a.stem == b.stem == f"dmp__{TASK}__seed0"
 
 
@@ -100,34 +104,46 @@ def test_cartesian_dmp_reproduces_the_mean_demo() -> None:
     mean_x, mean_q = mean_pose_demo(demos)
     assert np.allclose(np.linalg.norm(mean_q, axis=1), 1.0)
     assert (np.einsum("ij,ij->i", mean_q[1:], mean_q[:-1]) > 0).all()      # sign-continuous
-    x, q = model.reproduce(mean_x[None, 0], mean_q[None, 0], demos.t[:1])
-    assert x.shape == (1, 1000, 3) and q.shape == (1, 1000, 4)
+    y, yd = model.reproduce(np.concatenate([mean_x, mean_q], axis=1)[None], demos.t[:1])
+    assert y.shape == (1, 1000, 7) and yd.shape == (1, 1000, 6)
+    x, q = y[..., :3], y[..., 3:]
     err_mm = 1000 * np.linalg.norm(x[0] - mean_x, axis=1)
     err_deg = np.degrees(geodesic_angle(quaternion_matrices(q[0]), quaternion_matrices(mean_q)))
     assert err_mm.max() < DMP_MEAN_MAX_MM and np.sqrt(np.mean(err_mm ** 2)) < DMP_MEAN_RMS_MM
     assert err_deg.max() < DMP_MEAN_MAX_DEG
     # the other sign of the start quaternion is the same orientation: the same rollout (its first 2 s)
-    x2, q2 = model.run(mean_x[0], -mean_q[0], model.duration, model.duration / 999, 120)
+    y2, _ = model.run(np.concatenate([mean_x[0], -mean_q[0]]), model.duration, model.duration / 999, 120)
+    x2, q2 = y2[:, :3], y2[:, 3:]
     assert np.allclose(x2, x[0, :120]) and np.degrees(geodesic_angle(quaternion_matrices(q2),
                                                                      quaternion_matrices(q[0, :120]))).max() < 1e-6
     # from a perturbed start it reaches the goal pose and stays there (coarse int_dt: fast)
     model.dmp.int_dt = 1 / 60
     st = rt.perturbed_starts(demos, TASK, rt.RobotTasksProtocol(perturbed_starts=1))
     t = np.linspace(0.0, 3 * model.duration, 300)
-    xr, qr = model.rollouts(st.x[:1], st.q[:1], t)
+    yr = model.rollouts(np.concatenate([st.x[:1], st.q[:1]], axis=1), t)
+    xr, qr = yr[..., :3], yr[..., 3:]
     late = t > 2 * model.duration
     assert 1000 * np.linalg.norm(xr[:, late] - demos.goal, axis=-1).max() < 1.0
     assert np.degrees(geodesic_angle(quaternion_matrices(qr[:, late]),
                                      quaternion_matrices(demos.goal_q))).max() < 1.0
+    # toward another end pose (the held-out split): the goal moves, given with either quaternion sign
+    end = np.concatenate([demos.x[3, -1] + [0.02, 0.0, -0.01], -demos.q[3, -1]])
+    moved = model.toward(end)
+    assert np.allclose(moved.goal[:3], end[:3]) and abs(moved.goal[3:] @ demos.q[3, -1]) == pytest.approx(1.0)
+    assert moved.goal[3:] @ model.goal[3:] > 0                                       # signed like the goal it had
+    assert np.array_equal(model.goal[:3], demos.goal)                                  # the model is unchanged
+    ym = moved.rollouts(np.concatenate([st.x[:1], st.q[:1]], axis=1), t)
+    assert 1000 * np.linalg.norm(ym[:, late, :3] - end[:3], axis=-1).max() < 1.0
+    assert rt.angles_deg(ym[:, late, 3:], demos.q[3, -1]).max() < 1.0
 
 
 def test_a_task_a_learner_refuses_is_reported_not_cached(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     def refuse(*args: Any) -> Any:
         raise DemoError("robottasks:scoop: demos do not end near a common goal")
 
-    monkeypatch.setattr(rt, "evaluate_task", refuse)
-    cell = rt.TaskCell.make("dmp", TASK, 0, {}, rt.RobotTasksProtocol())
-    result = rt.run_task_cells([cell], tmp_path / "cache", workers=1, progress=False)
+    monkeypatch.setattr(rt.RobotTasksSuite, "evaluate", refuse)
+    cell = SUITE.cell("dmp", TASK, 0, None, {})
+    result = run_cells([cell], tmp_path / "cache", workers=1, progress=False)
     assert result.records == [] and result.computed == [cell.stem]
     assert result.failed == [{"cell": cell.stem, "reason": "robottasks:scoop: demos do not end near a common goal",
                               "attempts": 1, "refused": True}]
@@ -136,17 +152,13 @@ def test_a_task_a_learner_refuses_is_reported_not_cached(tmp_path: Path, monkeyp
 
 # ---------------------------------------------------------------- the command
 
-def _argv(d: Path, *extra: str) -> list[str]:
-    return ["bench", "robottasks", "--learner", ",".join(LEARNERS), "--quick", "--tasks", TASK,
-            "--perturbed-starts", "1", "--workers", "2",
-            "--json", str(d / "r.json"), "--report", str(d / "rt.md"), *extra]
+QUICK_ARGV = ["bench", "robottasks", "--learner", ",".join(LEARNERS), "--quick", "--tasks", TASK,
+              "--perturbed-starts", "1", "--workers", "2"]
 
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    d = tmp_path_factory.mktemp("robottasks")
-    assert main(_argv(d)) == 0
-    return {"dir": d, "json": json.loads((d / "r.json").read_text()), "md": (d / "rt.md").read_text()}
+    return bench_run(tmp_path_factory.mktemp("robottasks"), QUICK_ARGV, "rt.md")
 
 
 def test_results_json_has_every_cell_with_numbers_in_range(quick: dict[str, Any]) -> None:
@@ -154,9 +166,10 @@ def test_results_json_has_every_cell_with_numbers_in_range(quick: dict[str, Any]
     assert {"protocol", "protocol_hash", "learners", "tasks", "seeds", "quick", "summary", "run", "results"} <= set(r)
     assert r["tasks"] == [TASK] and r["quick"] is True and r["protocol"]["perturbed_starts"] == 1
     assert r["protocol"] == rt.RobotTasksProtocol(perturbed_starts=1).to_dict()
-    assert sorted(f"{c['learner']}__{c['task']}__seed{c['seed']}" for c in r["results"]) == sorted(CELLS)
-    assert r["run"]["computed"] == 2 and r["run"]["cached"] == 0 and r["run"]["failed"] == []
-    cells = {c["learner"]: c for c in r["results"]}
+    inside = [c for c in r["results"] if c["split"] == "in-sample"]
+    assert sorted(f"{c['learner']}__{c['task']}__seed{c['seed']}" for c in inside) == sorted(CELLS)
+    assert r["run"]["computed"] == 2 + 2 * 9 and r["run"]["cached"] == 0 and r["run"]["failed"] == []
+    cells = {c["learner"]: c for c in inside}
     for learner, c in cells.items():
         assert set(c["metrics"]) == set(rt.METRICS) and all(len(v) == 9 for v in c["per_demo"].values())
         assert all(isinstance(v, float) and v >= 0 for v in c["metrics"].values()), learner
@@ -172,7 +185,41 @@ def test_results_json_has_every_cell_with_numbers_in_range(quick: dict[str, Any]
                                                 "rollouts": "rk4 on (x, s), step 0.0666 s"}
     assert cells["dmp"]["config"]["int_dt"] == pytest.approx(1 / 60)   # the quick option
     s = r["summary"]
-    assert set(s) == set(LEARNERS) and s["dmp"]["tasks"] == 1 and s["dmp"]["converged"] == 1.0
+    assert set(s) == set(LEARNERS) and s["dmp"]["in-sample"]["units"] == 1 and s["dmp"]["in-sample"]["converged"] == 1.0
+
+
+def test_held_out_runs_a_field_per_demo_toward_that_demos_own_end(quick: dict[str, Any]) -> None:
+    """9 cells per learner, cell i trained on the other 8 demos and run from demo i's start toward its
+    own end pose, which it reaches. The demos end at one position but at orientations degrees apart:
+    where demo i's end lies away from the training demos' goal orientation, the run ends at demo i's."""
+    demos = robottasks(TASK)
+    assert demos.q is not None
+    for learner in LEARNERS:
+        apart = 0
+        held = sorted((c for c in quick["json"]["results"] if c["learner"] == learner and c["split"] == "held-out"),
+                      key=lambda c: c["fold"])
+        assert [c["fold"] for c in held] == list(range(9))
+        for c in held:
+            i = c["fold"]
+            assert c["scored_demos"] == [i] and c["train_demos"] == [k for k in range(9) if k != i]
+            assert set(c["metrics"]) == set(rt.METRICS) and all(len(v) == 1 for v in c["per_demo"].values())
+            m = c["metrics"]
+            assert m["final_mm"] < HELD_OUT_END_MM and m["final_deg"] < HELD_OUT_END_DEG, (learner, i, m)
+            y = np.load(quick["dir"] / ".cache" / "r" / f"{c['learner']}__{TASK}__seed0__out{i}.npz")["reproduction"]
+            assert y.shape == (1, demos.n_samples, 7)
+            np.testing.assert_allclose(y[0, 0, :3], demos.x[i, 0], atol=1e-9)            # from its own start
+            assert rt.angles_deg(y[0, -1, 3:], demos.q[i, -1]) == pytest.approx(m["final_deg"], rel=1e-9, abs=1e-9)
+            train_goal_q = demos.subset(c["train_demos"]).goal_q
+            gap = rt.angles_deg(demos.q[i, -1], train_goal_q)           # demo i's end from the training goal
+            if gap > 2 * HELD_OUT_END_DEG:
+                apart += 1
+                assert rt.angles_deg(y[0, -1, 3:], train_goal_q) > gap - HELD_OUT_END_DEG, (learner, i)
+        assert apart >= 5
+        s = quick["json"]["summary"][learner]
+        mean = float(np.mean([h["metrics"]["dtw_mm"] for h in held]))
+        assert s["held-out"]["metrics"]["dtw_mm"]["mean"] == pytest.approx(mean, rel=1e-12)
+        assert s["held-out / in-sample"]["dtw_mm"]["ratio"] == pytest.approx(
+            mean / s["in-sample"]["metrics"]["dtw_mm"]["mean"], rel=1e-12)
 
 
 def test_report_has_tables_and_figures(quick: dict[str, Any]) -> None:
@@ -182,9 +229,14 @@ def test_report_has_tables_and_figures(quick: dict[str, Any]) -> None:
     for learner in LEARNERS:
         assert re.search(rf"^\| {learner} \| 1 \|", summary, re.M)
         section = md.split(f"## Per task: {learner}")[1].split("## ")[0]
-        rows = [line for line in section.splitlines() if line.startswith("| ")][1:]
-        assert [row.split("|")[1].strip() for row in rows] == [TASK, "**Mean**", "**Median**"]
+        inside, held = section.split(f"Held-out demos, {learner}:")
+        for table in (inside, held):
+            rows = [line for line in table.splitlines() if line.startswith("| ")][1:]
+            assert [row.split("|")[1].strip() for row in rows] == [TASK, "**Mean**", "**Median**"]
     assert "## Reading" in md and "100.0% of the perturbed starts" in md
+    split = md.split("## In-sample and held-out")[1].split("## ")[0]
+    assert "| learner | tasks | DTW (sum, mm) in-sample | held-out | ratio | angle along DTW (°) in-sample |" in split
+    assert all(re.search(rf"^\| {learner} \| 1 \| ", split, re.M) for learner in LEARNERS)
     for kind in ("paths", "angle"):
         assert f"(figures/rt_{TASK}_{kind}.png)" in md
         fig = d / "figures" / f"rt_{TASK}_{kind}.png"
@@ -194,24 +246,8 @@ def test_report_has_tables_and_figures(quick: dict[str, Any]) -> None:
 def test_second_run_resumes_from_the_cache(quick: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
     d = quick["dir"]
     capsys.readouterr()
-    assert main(_argv(d)) == 0
-    assert "0 cell(s) computed, 2 from" in capsys.readouterr().out
-    r = json.loads((d / "r.json").read_text())
-    assert r["run"]["computed"] == 0 and r["run"]["cached"] == 2
-    before = {c["learner"]: c["metrics"] for c in quick["json"]["results"]}
-    assert {c["learner"]: c["metrics"] for c in r["results"]} == before
-
-
-@pytest.mark.parametrize("argv, message", [
-    (["--tasks", "nosuchtask"], "nosuchtask"),
-    (["--learner", "gp"], "unknown learner"),
-    (["--perturbed-starts", "-1"], "perturbed_starts"),
-    (["--option", "dmp.int_dt=0"], "int_dt"),
-])
-def test_bad_input_exits_2_with_one_line_and_writes_nothing(argv: list[str], message: str, tmp_path: Path,
-                                                            capsys: pytest.CaptureFixture[str]) -> None:
-    out = tmp_path / "out"
-    code = main(["bench", "robottasks", *argv, "--json", str(out / "r.json"), "--report", str(out / "r.md")])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and message in err and len(err.splitlines()) == 1, err
-    assert list(tmp_path.iterdir()) == []
+    r = bench_run(d, QUICK_ARGV, "rt.md")["json"]
+    assert "0 cell(s) computed, 20 from" in capsys.readouterr().out
+    assert r["run"]["computed"] == 0 and r["run"]["cached"] == 20
+    before = {(c["learner"], c["fold"]): c["metrics"] for c in quick["json"]["results"]}
+    assert {(c["learner"], c["fold"]): c["metrics"] for c in r["results"]} == before

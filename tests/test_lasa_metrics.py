@@ -13,7 +13,11 @@ from scipy.linalg import expm
 import lfd
 from lfd import metrics as M
 from lfd.bench import protocol as P
-from lfd.bench.evaluate import METRICS, FieldModel, score, spurious_grid
+from lfd.bench import report as R
+from lfd.bench.fields import FieldModel
+from lfd.bench.lasa import LABELS, METRICS, LasaSuite, spurious_grid
+from lfd.bench.spaces import POSITIONS
+from lfd.bench.summary import per_unit, summarize
 from lfd.demos import lasa
 
 sm = pytest.importorskip("similaritymeasures")
@@ -121,7 +125,7 @@ class Linear(torch.nn.Module):
 
 def linear_model(demos: lfd.DemoSet, dead: bool = False) -> FieldModel:
     norm = lfd.Normalization.from_points(demos.x, demos.goal)
-    return FieldModel(lfd.VelocityField(Linear(dead), norm, "node", {}))
+    return FieldModel(lfd.VelocityField(Linear(dead), norm, "node", {}), POSITIONS)
 
 
 def test_each_demo_is_rolled_out_on_its_own_clock() -> None:
@@ -139,7 +143,8 @@ def test_each_demo_is_rolled_out_on_its_own_clock() -> None:
 
 def test_score_reports_every_definition_and_the_grid_counts_spurious_starts() -> None:
     d = lasa("Angle").subset([0, 1])
-    per, ys = score(linear_model(d), d, dtw_step=4)
+    ys, vs = linear_model(d).reproduce(d.x, d.t)
+    per = LasaSuite(P.LasaProtocol()).score(ys, vs, d, [0, 1], d.goal)
     assert set(per) == set(METRICS) and ys.shape == d.x.shape
     assert {"dtw", "dtw_per_sample", "chamfer_dtwd", "chamfer_dtwd_std", "frechet", "rmse",
             "swept_area"} <= set(per)
@@ -157,22 +162,23 @@ def test_score_reports_every_definition_and_the_grid_counts_spurious_starts() ->
 
 
 def test_report_carries_every_definition_and_the_grid() -> None:
-    from lfd.bench import report as R
+    suite = LasaSuite(P.LasaProtocol())
 
     def record(learner: str, shape: str, spurious: float | None) -> dict:
         conv = {"rate": 1.0, "demo": 1.0, "ring": 1.0, "box": 1.0, "n_demo": 7, "n_ring": 56, "n_box": 64,
                 "spurious_grid": spurious, "n_grid": 0 if spurious is None else 1225}
-        return {"learner": learner, "shape": shape, "seed": 0, "train": {m: 1.0 + i for i, m in enumerate(METRICS)},
-                "test": None, "convergence": conv, "train_time_s": 1.0, "step_time_us": 10.0, "cell_s": 2.0,
-                "integrators": {}}
+        return {"learner": learner, "shape": shape, "seed": 0, "split": "in-sample", "fold": None,
+                "metrics": {m: 1.0 + i for i, m in enumerate(METRICS)}, "convergence": conv, "train_time_s": 1.0,
+                "step_time_us": 10.0, "cell_s": 2.0, "integrators": {}}
 
     records = [record("node", "Angle", 0.1), record("node", "Sine", 0.15), record("dmp", "Angle", None)]
-    summary = R.summarize(records, ["node", "dmp"])
-    assert summary["node"]["spurious"]["mean"] == pytest.approx(0.125) and summary["dmp"]["spurious"] is None
-    table = R.summary_table(summary, "train")
+    summary = summarize(suite, records, ["node", "dmp"])
+    assert summary["node"]["in-sample"]["spurious"]["mean"] == pytest.approx(0.125)
+    assert summary["dmp"]["in-sample"]["spurious"] is None and summary["dmp"]["held-out"] is None
+    table = R.summary_table(suite, summary, "in-sample")
     for m in ("dtw", "dtw_per_sample", "chamfer_dtwd_std", "frechet", "rmse", "swept_area"):
-        assert R.LABELS[m] in table
+        assert LABELS[m] in table
     assert "spurious (35×35 grid)" in table and "12.5% / 12.5%" in table
-    rows = R.shape_table(R.per_shape(records, "node"), ["Angle", "Sine"], "train")
+    rows = R.unit_table(suite, per_unit(suite, records, "node", "in-sample"), ["Angle", "Sine"], "in-sample")
     assert "| Angle |" in rows and "10.0%" in rows and "15.0%" in rows
-    assert "| — |" in R.shape_table(R.per_shape(records, "dmp"), ["Angle"], "train")
+    assert "| — |" in R.unit_table(suite, per_unit(suite, records, "dmp", "in-sample"), ["Angle"], "in-sample")

@@ -21,15 +21,16 @@ import pytest
 from records import numbers
 
 import lfd
+from lfd.bench.lasa import LasaSuite
 from lfd.bench.protocol import LasaProtocol
 from lfd.bench.report import write_report
-from lfd.bench.runner import Cell, load_arrays, run_cells
+from lfd.bench.runner import load_arrays, run_cells
 from lfd.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 PYTHON = sys.executable
-# a cheap protocol: few starts and a tiny grid (the cache logic does not depend on its size)
-SMALL = LasaProtocol(ring_points=1, box_points=2, spurious_grid=2, grid=4, keep_points=10, timing_calls=5)
+# the LASA suite on a cheap protocol: few starts and a tiny grid (the cache logic does not depend on its size)
+SMALL = LasaSuite(LasaProtocol(ring_points=1, box_points=2, spurious_grid=2, grid=4, keep_points=10, timing_calls=5))
 
 
 def _no_temporaries(folder: Path) -> None:
@@ -60,7 +61,7 @@ def _garbage(p: Path) -> None:
 def _edit_number(p: Path) -> None:
     """A valid JSON record with one number changed (a number nobody could tell is wrong)."""
     entry = json.loads(p.read_text())
-    entry["train"]["rmse"] *= 0.5
+    entry["metrics"]["rmse"] *= 0.5
     p.write_text(json.dumps(entry, indent=2))
 
 
@@ -73,7 +74,7 @@ CORRUPTIONS: dict[str, Callable[[Path], None]] = {
 def bench_clean(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """One DMP cell on the small protocol, computed into a fresh cache."""
     cache = tmp_path_factory.mktemp("bench_cache")
-    cells = [Cell.make("dmp", "Angle", 0, {}, SMALL)]
+    cells = [SMALL.cell("dmp", "Angle", 0, None, {})]
     result = run_cells(cells, cache, progress=False)
     assert result.computed == ["dmp__Angle__seed0"] and not result.failed
     return {"cache": cache, "cells": cells, "records": result.records}
@@ -106,7 +107,7 @@ def test_bad_bench_cache_entry_is_recomputed_with_one_warning(bench_clean: dict[
         warnings.simplefilter("always")
         third = run_cells(bench_clean["cells"], cache, progress=False)
     assert third.cached == ["dmp__Angle__seed0"] and not caught
-    arrays = load_arrays(cache, third.records[0])
+    arrays = load_arrays(cache, SMALL.record_stem(third.records[0]))
     assert arrays["rollouts"].size > 0
 
 
@@ -114,7 +115,7 @@ def test_entry_of_other_inputs_is_recomputed_silently(bench_clean: dict[str, Any
     """A changed option gives another key: computed without a warning (nothing is wrong)."""
     cache = tmp_path / "cache"
     shutil.copytree(bench_clean["cache"], cache)
-    other = [Cell.make("dmp", "Angle", 0, {"n_weights_per_dim": 20}, SMALL)]
+    other = [SMALL.cell("dmp", "Angle", 0, None, {"n_weights_per_dim": 20})]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = run_cells(other, cache, progress=False)
@@ -127,8 +128,8 @@ def test_two_reports_in_one_folder_keep_their_own_figures(bench_clean: dict[str,
            "load_start": "0", "load_end": "0"}
     paths = {}
     for name in ("quick", "full"):
-        figs = write_report(tmp_path / f"{name}.md", records, ["dmp"], ["Angle"], SMALL.to_dict(), run,
-                            lambda r: load_arrays(cache, r))
+        figs = write_report(tmp_path / f"{name}.md", SMALL, records, ["dmp"], ["Angle"], run,
+                            lambda r: load_arrays(cache, SMALL.record_stem(r)))
         assert figs == [tmp_path / "figures" / f"{name}_dmp.png"]
         paths[name] = figs[0]
     for name, fig in paths.items():
@@ -143,8 +144,8 @@ def test_bench_command_recomputes_a_truncated_cell_with_one_warning_line(tmp_pat
     """``lfd bench lasa --quick --cache C`` with a truncated cell NPZ: exit 0, one warning line,
     the JSON written, the same numbers as the clean run."""
     cache = tmp_path / "C"
-    argv = ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle", "--workers", "1",
-            "--cache", str(cache), "--json", str(tmp_path / "r.json"), "--report", str(tmp_path / "r.md")]
+    argv = ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle", "--split", "in-sample", "--workers",
+            "1", "--cache", str(cache), "--json", str(tmp_path / "r.json"), "--report", str(tmp_path / "r.md")]
     assert main(argv) == 0
     clean = json.loads((tmp_path / "r.json").read_text())["results"]
     capsys.readouterr()

@@ -94,7 +94,7 @@ def test_push_arrow_shows_only_while_the_push_acts(exp, pushed, tmp_path):
 
 
 def test_side_by_side_has_one_labelled_panel_per_run(exp, demos, tmp_path):
-    """Its cost against single videos is measured by scripts/speed_render.py, not asserted here."""
+    """Its cost against single videos is measured by scripts/speed.py render, not asserted here."""
     push = (sim.Push(start_s=0.3, duration_s=0.2, seed=1),)
     runs = [exp.run(sink_field(demos, name, a), "push", perturbations=push)
             for name, a in (("node", 0.5), ("contraction", 1.5), ("tracking", 4.0))]

@@ -1,17 +1,29 @@
-"""The LASA benchmark harness behind ``lfd bench lasa`` (protocol: docs/benchmark.md).
+"""The benchmarks behind ``lfd bench`` (protocols: docs/benchmark.md).
 
-- ``protocol``: data, split, starts, horizon (``LasaProtocol``);
-- ``evaluate``: one (learner, shape, seed) cell, trained and scored (``evaluate_cell``);
-- ``dmp``: the DMP baseline from ``movement_primitives`` (``fit_dmp``);
-- ``runner``: parallel, resumable runs of cells (``Cell``, ``run_cells``);
-- ``report``: aggregates, markdown and figures (``summarize``, ``write_report``);
-- ``comparison``: the NODE against the contraction learners on the spiral (``scripts/compare_learners.py``).
+Suites (``lfd.bench.suite.Suite``: units, cells, scores, one report path), by name in ``SUITES``:
+``lasa`` (``lfd.bench.lasa``) and ``robottasks`` (``lfd.bench.robottasks``). What they share:
+``model`` (the ``Model`` interface), ``fields`` and ``dmp`` (its implementations), ``spaces``
+(positions or poses; ``fit``), ``runner`` and ``executor`` (cached, parallel, resumable cells),
+``summary`` and ``report``. The reports beside them: ``comparison`` and ``comparison_report``
+(the spiral, ``lfd bench comparison``), ``tradeoff`` (``lfd bench tradeoff``), ``obstacles`` and
+``obstacles_report`` (``lfd bench obstacles``).
+
+Importing this package imports nothing else (``lfd --help`` reads ``SUITES``); ``get_suite`` imports
+a suite's module.
 """
 
-from lfd.bench.dmp import fit_dmp
-from lfd.bench.evaluate import evaluate_cell
-from lfd.bench.protocol import LasaProtocol
-from lfd.bench.report import summarize, write_report
-from lfd.bench.runner import Cell, run_cells
+from __future__ import annotations
 
-__all__ = ["Cell", "LasaProtocol", "evaluate_cell", "fit_dmp", "run_cells", "summarize", "write_report"]
+import importlib
+from typing import Any
+
+#: every suite by its name in ``lfd bench NAME``: the module whose ``SUITE`` is its class
+SUITES: dict[str, str] = {"lasa": "lfd.bench.lasa", "robottasks": "lfd.bench.robottasks"}
+
+
+def get_suite(name: str) -> Any:
+    """The suite class (a ``lfd.bench.suite.Suite`` subclass) registered under ``name``."""
+    return importlib.import_module(SUITES[name]).SUITE
+
+
+__all__ = ["SUITES", "get_suite"]

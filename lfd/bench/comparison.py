@@ -1,9 +1,10 @@
 """The paper's experiments on the noisy spiral, measured: the learners side by side (Table 2).
 
-``scripts/compare_learners.py`` trains the learners (``trained``, cached), wraps each in an
-``Entry`` and fills ``Entry.numbers`` with ``measure``, and its certificate with ``certificate``.
-With the same starts, solver (RK4, ``DT``) and horizon for every model, ``measure`` gives the
-paper's Table 2:
+``lfd bench comparison`` (``lfd.bench.comparison_report.run_comparison``) trains the learners
+(``trained``, cached), wraps each model (``lfd.bench.model.Model``) in an ``Entry`` and fills
+``Entry.numbers`` with ``measure``, and its certificate with ``certificate``. With the same starts,
+solver (RK4, ``DT``: ``Model.simulate``) and horizon for every model, ``measure`` gives the paper's
+Table 2:
 
 - accuracy: RMSE and DTW of the rollouts from the demo starts, mean over demos;
 - robustness: ``N_STARTS`` seeded starts perturbed around the demo starts, and as many task-space
@@ -18,7 +19,7 @@ paper's Table 2:
 - computational efficiency and real time: training time, one control-loop field step,
   evaluations per second.
 
-The figures and the report: ``scripts/_comparison_report.py``.
+The figures and the report: ``lfd.bench.comparison_report``.
 """
 
 from __future__ import annotations
@@ -30,13 +31,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from dataclasses import field as dc_field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lfd import evaluation, metrics
+from lfd import metrics
 from lfd.bench.dmp import DMPModel
+from lfd.bench.fields import FieldModel
+from lfd.bench.model import Model
 from lfd.certify import certify
 from lfd.demos import DemoSet, spiral
 from lfd.errors import ModelError
@@ -76,81 +79,19 @@ class Cert:
 
 @dataclass
 class Entry:
-    """One learner's model, how to simulate it, and its measurements."""
+    """One learner's model (``lfd.bench.model.Model``, run through its fixed-step methods), and its
+    certificate and measurements."""
 
     label: str
-    model: Any                                 # a VelocityField or a DMPModel
+    model: Model
     cert: Cert | None = None
     numbers: dict[str, float] = dc_field(default_factory=dict)
     starts_rollout: np.ndarray | None = None
 
     @property
     def field(self) -> VelocityField:
-        return self.model
-
-    @property
-    def is_dmp(self) -> bool:
-        return isinstance(self.model, DMPModel)
-
-    @property
-    def is_tracking(self) -> bool:
-        return isinstance(self.model, TrackingField)
-
-    def simulate(self, x0: np.ndarray, t: np.ndarray, kick_at: int | None = None,
-                 kicks: np.ndarray | None = None) -> np.ndarray:
-        """States (B, T, d) from starts x0 (B, d) over the uniform grid t (T,), with ``kicks`` (B, d)
-        added to the state at sample ``kick_at``. Fields: RK4 on the grid (tracking fields carry their
-        phase, Eqs. (T3)-(T4)); the DMP: its own rk4 ``step`` with dt = the grid's step, tau = T."""
-        x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
-        with np.errstate(all="ignore"):
-            if self.is_dmp:
-                return np.stack([self._dmp(p, t, kick_at, None if kicks is None else kicks[i])
-                                 for i, p in enumerate(x0)])
-            if kick_at is None:
-                return self.model.rollout(x0, t, method="rk4")
-            if self.is_tracking:
-                a, s = self.model.rollout_with_phase(x0, t[:kick_at + 1])
-                b, _ = self.model.rollout_with_phase(a[:, -1] + kicks, t[kick_at:], s0=s[:, -1], start=x0)
-            else:
-                a = self.model.rollout(x0, t[:kick_at + 1], method="rk4")
-                b = self.model.rollout(a[:, -1] + kicks, t[kick_at:], method="rk4")
-            return np.concatenate([a, b[:, 1:]], axis=1)
-
-    def _dmp(self, x0: np.ndarray, t: np.ndarray, kick_at: int | None, kick: np.ndarray | None) -> np.ndarray:
-        m: DMPModel = self.model
-        m._configure(x0, m.duration, float(t[1] - t[0]))
-        y, yd = np.empty((len(t), len(x0))), np.zeros(len(x0))
-        y[0] = x0
-        for k in range(1, len(t)):
-            y[k], yd = m.dmp.step(y[k - 1], yd)
-            if kick_at is not None and k == kick_at:
-                y[k] = y[k] + kick
-        return y
-
-    def reproduce(self, demos: DemoSet) -> np.ndarray:
-        """Rollouts from each demo's start over its own time grid, (N, T, d)."""
-        if self.is_dmp:
-            return self.model.reproduce(demos.x, demos.t)[0]
-        return evaluation.reproduce(self.model, demos)
-
-    @property
-    def train_s(self) -> float:
-        if self.is_dmp:
-            return float(self.model.train_time_s)
-        return float(self.model.history.get("train_time_s", float("nan")))
-
-    def step_fn(self, x0: np.ndarray) -> Callable[[np.ndarray], Any]:
-        """The evaluator a 500 Hz control loop calls once per step (tracking: (x, s) -> (v, s_dot);
-        DMP: one ``DMP.step``; other fields: ``single_point_evaluator``)."""
-        if self.is_tracking:
-            fn = self.model.phase_point_fn(x0)
-            return lambda x: fn(x, 0.3)
-        if self.is_dmp:
-            m: DMPModel = self.model
-            m._configure(x0, m.duration, 0.002)
-            yd = np.zeros(len(m.goal))
-            return lambda x: m.dmp.step(x, yd)
-        return self.model.single_point_evaluator()
+        """The trained field of a field learner's entry."""
+        return cast(FieldModel, self.model).field
 
 
 def path_deviation(xs: np.ndarray, tree: cKDTree) -> np.ndarray:
@@ -166,7 +107,7 @@ def neighbour_pairs(e: Entry, x0: np.ndarray, eps: float, horizon: float) -> tup
     u = np.random.default_rng(SEED + 3).normal(size=x0.shape)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     t = np.arange(0.0, horizon + 1e-9, DT)
-    xs = e.simulate(np.concatenate([x0, x0 + eps * u]), t)
+    xs = e.model.simulate(np.concatenate([x0, x0 + eps * u]), t)
     return t, np.linalg.norm(xs[: len(x0)] - xs[len(x0):], axis=-1)
 
 
@@ -204,15 +145,14 @@ def time_call(fn: Callable[[np.ndarray], Any], x: np.ndarray, n: int = 3000) -> 
 
 
 def time_batched(e: Entry, pts: np.ndarray, repeats: int = 7) -> float:
-    """Field evaluations per second through the batched numpy API, median of ``repeats`` (nan: none)."""
-    if e.is_dmp:
+    """Evaluations per second through the model's batched step (``Model.batch_step``), median of
+    ``repeats`` (nan: the model has none)."""
+    if e.model.batch_step(pts) is None:
         return float("nan")
-    f = (lambda p: e.model.velocity(p, np.full(len(p), 0.3))) if e.is_tracking else e.model
-    f(pts)
     ts = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        f(pts)
+        e.model.batch_step(pts)
         ts.append(time.perf_counter() - t0)
     return float(len(pts) / np.median(ts))
 
@@ -221,14 +161,14 @@ def measure(entry: Entry, demos: DemoSet, extent: float, duration: float) -> Non
     """Fill ``entry.numbers`` (see the module docstring)."""
     n = entry.numbers
     tree = cKDTree(demos.x.reshape(-1, demos.dim))
-    ys = entry.reproduce(demos)
+    ys = entry.model.simulate_demos(demos)
     n["rmse"] = float(np.mean([metrics.rmse(y, x) for y, x in zip(ys, demos.x)]))
     n["dtw"] = float(np.mean([metrics.dtw(y, x) for y, x in zip(ys, demos.x)]))
     rng = np.random.default_rng(SEED)
     base = demos.x[np.arange(N_STARTS) % demos.n_demos, 0]
     x0 = base + rng.normal(scale=START_SPREAD * extent, size=base.shape)
     t = np.arange(0.0, HORIZON_FACTOR * duration + 1e-9, DT)
-    xs = entry.simulate(x0, t)
+    xs = entry.model.simulate(x0, t)
     entry.starts_rollout = xs
     final = metrics.final_goal_distance(xs, demos.goal)
     n["start_final"] = float(np.nanmax(np.where(np.isfinite(final), final, np.inf)))
@@ -238,59 +178,71 @@ def measure(entry: Entry, demos: DemoSet, extent: float, duration: float) -> Non
     u = rng.normal(size=base.shape)
     kicks = KICK * extent * u / np.linalg.norm(u, axis=1, keepdims=True)
     mid = int(round(duration / 2 / DT))
-    xk = entry.simulate(base, t, kick_at=mid, kicks=kicks)[:, mid:]
+    xk = entry.model.simulate(base, t, kick_at=mid, kicks=kicks)[:, mid:]
     final = metrics.final_goal_distance(xk, demos.goal)
     n["kick_final"] = float(np.nanmax(np.where(np.isfinite(final), final, np.inf)))
     n["kick_dev"] = float(path_deviation(xk, tree).max())
     n["kick_reached"] = metrics.convergence_rate(xk[:, -1], demos.goal, GOAL_RADIUS * extent)
     xf0 = np.random.default_rng(SEED + 4).uniform(*demos.bounds(FAR_GROWTH), size=(N_STARTS, demos.dim))
-    xf = entry.simulate(xf0, np.arange(0.0, FAR_HORIZON_FACTOR * duration + 1e-9, DT))
+    xf = entry.model.simulate(xf0, np.arange(0.0, FAR_HORIZON_FACTOR * duration + 1e-9, DT))
     n["far_reached"] = metrics.convergence_rate(xf[:, -1], demos.goal, GOAL_RADIUS * extent)
     # convergence: the five starts, neighbouring trajectories, transient growth
     t8 = np.arange(0.0, 8.0 + 1e-9, DT)
     path = nominal_spiral(4000).x[0]
-    x5 = entry.simulate(five_starts(demos, extent), t8)
+    x5 = entry.model.simulate(five_starts(demos, extent), t8)
     n["five_time"] = time_to_path(x5, t8, path, FIVE_TOL * extent)
     n["five_cover"] = float(max(cKDTree(np.nan_to_num(x, nan=1e9)).query(path)[0].max() for x in x5))
     n["rate_fit"] = float(np.median(fitted_rates(entry, x0[:N_PAIRS], NEIGHBOUR_EPS * extent, duration)))
     xg = np.random.default_rng(SEED + 6).uniform(*demos.bounds(TRANSIENT_GROWTH), size=(N_PAIRS, demos.dim))
     _, dist = neighbour_pairs(entry, xg, NEIGHBOUR_EPS * extent, duration)
     n["growth"] = float(np.max(dist / dist[:, :1]))
-    if entry.is_tracking:   # the in-phase error |x - r(s)| of Eq. (T5), fitted like the pairs
-        xs5, ss5 = entry.model.rollout_with_phase(x0[:N_PAIRS], np.arange(0.0, 2.0 + 1e-9, DT))
-        err = np.stack([np.linalg.norm(x - entry.model.reference(s, p), axis=-1)
-                        for x, s, p in zip(xs5, ss5, x0[:N_PAIRS])])
+    err = entry.model.phase_error(x0[:N_PAIRS], np.arange(0.0, 2.0 + 1e-9, DT))
+    if err is not None:   # the in-phase error |x - r(s)| of Eq. (T5), fitted like the pairs
         te = np.arange(err.shape[1]) * DT
         n["error_rate_fit"] = float(np.median([-np.polyfit(te, np.log(np.maximum(e, 1e-300)), 1)[0] for e in err]))
-    n["train_s"] = entry.train_s
-    n["step_us"] = time_call(entry.step_fn(demos.x[0, 0]), demos.x[0, 10])
+    n["train_s"] = entry.model.train_time_s
+    n["step_us"] = time_call(entry.model.control_step(demos.x[0, 0]), demos.x[0, 10])
     n["evals_single"] = 1e6 / n["step_us"]
     grid = np.random.default_rng(SEED + 1).uniform(*demos.bounds(0.5), size=(10_000, demos.dim))
     n["evals_batched"] = time_batched(entry, grid)
 
 
-def certificate(e: Entry, lo: np.ndarray, hi: np.ndarray) -> Cert:
-    """The learner's own certificate: ``lfd.certify`` (Eq. (C1)) for NODE and goal contraction,
-    ``check_tracking_contraction`` (Eq. (T5), J = -K I) for tracking, none for the DMP."""
-    if e.is_dmp:
-        a = float(e.model.config["alpha_y"]) / (2.0 * e.model.duration)
-        return Cert(None, None, False, f"none (time-indexed; its spring-damper has a double eigenvalue "
-                                       f"-alpha_y/(2 tau) = -{a:.2f}/s)")
-    if e.is_tracking:
-        t = check_tracking_contraction(e.model, lo, hi)
-        return Cert(t["rate"], t["condition_number"], t["certified"],
-                    f"max eig sym(J) = {t['worst_eig']:.4f} <= -{t['rate']:g}; |e(t)| - |e(0)|e^(-Kt) <= "
-                    f"{t['worst_error_excess']:.1e}", t["worst_eig"], t["bound"])
-    c = certify(e.model, lo, hi)
+def _dmp_certificate(e: Entry, lo: np.ndarray, hi: np.ndarray) -> Cert:
+    """None: the DMP is time-indexed; its spring-damper's double eigenvalue -alpha_y / (2 tau)."""
+    a = float(e.model.config["alpha_y"]) / (2.0 * cast(DMPModel, e.model).duration)
+    return Cert(None, None, False, f"none (time-indexed; its spring-damper has a double eigenvalue "
+                                   f"-alpha_y/(2 tau) = -{a:.2f}/s)")
+
+
+def _tracking_certificate(e: Entry, lo: np.ndarray, hi: np.ndarray) -> Cert:
+    """``check_tracking_contraction`` (Eq. (T5), J = -K I)."""
+    t = check_tracking_contraction(cast(TrackingField, e.field), lo, hi)
+    return Cert(t["rate"], t["condition_number"], t["certified"],
+                f"max eig sym(J) = {t['worst_eig']:.4f} <= -{t['rate']:g}; |e(t)| - |e(0)|e^(-Kt) <= "
+                f"{t['worst_error_excess']:.1e}", t["worst_eig"], t["bound"])
+
+
+def _field_certificate(e: Entry, lo: np.ndarray, hi: np.ndarray) -> Cert:
+    """``lfd.certify`` (Eq. (C1)): the identity metric of a field without one, else its own."""
+    c = certify(e.field, lo, hi)
     if c.metric == "identity":
         return Cert(None, None, c.certified, f"none (worst max eig(J+J') = {c.worst:.2f} > 0)", c.worst, c.bound)
     cond = c.condition_bound                         # analytic, for a field with a metric
     measured = c.sampled_metric_max_eig / c.sampled_metric_min_eig
-    verdict = c.verdict
     op = "<=" if c.worst <= c.bound else ">"
     return Cert(c.rate, float(cond) if cond is not None else measured, c.certified,
-                f"{'' if c.certified else verdict + ': '}worst {c.worst:.6f} {op} {c.bound:.4f}; "
+                f"{'' if c.certified else c.verdict + ': '}worst {c.worst:.6f} {op} {c.bound:.4f}; "
                 f"b/a sampled on the box {measured:.3g}", c.worst, c.bound)
+
+
+#: the check of each learner by its registry name (``lfd.certify`` for any other)
+CERTIFICATES: dict[str, Callable[[Entry, np.ndarray, np.ndarray], Cert]] = {
+    "dmp": _dmp_certificate, "tracking": _tracking_certificate}
+
+
+def certificate(e: Entry, lo: np.ndarray, hi: np.ndarray) -> Cert:
+    """The learner's own certificate on the box [lo, hi] (``CERTIFICATES``)."""
+    return CERTIFICATES.get(e.model.learner, _field_certificate)(e, lo, hi)
 
 
 def nominal_spiral(n_samples: int = 200) -> DemoSet:

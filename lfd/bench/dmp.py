@@ -1,62 +1,40 @@
-"""The DMP baselines: one ``movement_primitives`` DMP fitted to the mean demonstration.
+"""The DMP baselines as benchmark ``Model`` objects: one ``movement_primitives`` DMP fitted to the mean demo.
 
-A DMP (Ijspeert et al. 2013, Eq. 2.1 of that paper) is the transformation system
+A DMP is time-indexed, not an autonomous field x -> dx/dt, so the benchmarks run it thus
+(docs/benchmark.md):
 
-    tau^2 ydd = alpha_y (beta_y (g - y) - tau yd) + f(z),   z = exp(-alpha_z t / tau),
+- Fit: the mean demo m_k = (1/K) sum_i x_i[k] of the K training demos (averaged per sample index;
+  a pose set's orientations by the chordal mean, ``lfd.pose.mean_quaternion``, sign-continuous), on
+  a uniform grid over the mean duration tau_0.
+- Reproduce demo i: from its start at rest toward the goal, with tau = demo i's duration and step
+  tau / (T - 1), so the T samples line up with the demo's in time; the velocity metrics take the
+  rollout's yd. ``toward(end)`` moves the goal (the held-out split).
+- Rollouts from other starts: tau = tau_0 on the rollout grid. No streamlines; the single-step time
+  is one ``step``.
 
-with a forcing term f of ``n_weights_per_dim`` radial basis functions of the phase z, fitted by
-(ridge) regression to one demonstration. It is time-indexed, not an autonomous field x -> dx/dt,
-so the benchmark uses it as follows (docs/benchmark.md):
-
-- Fit: the mean demo m_k = (1/K) sum_i x_i[k] of the K training demos (all LASA demos have the
-  same sample count; averaging is per sample index), on a uniform grid over the mean duration.
-- Reproduce demo i: start y(0) = x_i[0], yd(0) = 0, goal g = the common goal, tau = demo i's
-  duration and step tau / (T - 1), so the T samples line up with the demo's in time.
-- Velocity metrics: the rollout's yd against the demo's velocity, sample by sample (a field
-  is instead evaluated at the demo's points).
-- Perturbed starts: tau = the mean training duration, run for the benchmark horizon.
-- No streamlines; the single-step time is one ``DMP.step`` (an rk4 step, in compiled code).
-
-Poses (``lfd bench robottasks``) get the Cartesian DMP of Ude et al. (2014), ``CartesianDMP``:
-the position part as above, and for the orientation, a unit quaternion q (w, x, y, z) with the
-angular velocity omega,
-
-    tau^2 omega_dot = alpha_y (beta_y 2 log(g_q * conj(q)) - tau omega) + f_rot(z),
-    q(t + dt) = exp(dt omega / 2) * q(t),
-
-where 2 log(.) is the rotation vector (axis times angle, the shorter way round) and ``*`` the
-quaternion product. It is fitted and run like the position DMP (``fit_cartesian_dmp``): the mean
-demo is the per-sample mean position and the per-sample chordal mean quaternion
-(``lfd.pose.mean_quaternion``), made sign-continuous (``lfd.pose.continuous``); a reproduction
-starts at demo i's start pose at rest with the common goal pose (goal, goal_q) and tau = demo i's
-duration.
-
-References
-----------
-Ijspeert, A. J., Nakanishi, J., Hoffmann, H., Pastor, P., Schaal, S. (2013). Dynamical movement
-primitives: learning attractor models for motor behaviors. Neural Computation 25(2), 328-373.
-doi:10.1162/NECO_a_00393
-
-Ude, A., Nemec, B., Petric, T., Morimoto, J. (2014). Orientation in Cartesian space dynamic movement
-primitives. IEEE International Conference on Robotics and Automation (ICRA), 2997-3004.
-doi:10.1109/ICRA.2014.6907291
+``DMPModel`` (positions, ``fit_dmp``) is ``movement_primitives.dmp.DMP``; ``CartesianDMPModel``
+(poses (x, q), ``fit_cartesian_dmp``) is its ``CartesianDMP``.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 from movement_primitives.dmp import DMP, CartesianDMP
 
+from lfd.bench.model import TIMING_REPEATS, Model
 from lfd.demos import DemoSet
 from lfd.errors import ConfigError
 from lfd.pose import continuous, mean_quaternion
 
-TIMING_REPEATS = 5
+#: the control period of ``control_step``, s (500 Hz)
+CONTROL_DT = 0.002
 
 
 @dataclass(frozen=True)
@@ -127,78 +105,177 @@ def make_cartesian_config(**options: Any) -> CartesianDMPConfig:
     return config
 
 
-class DMPModel:
-    """A fitted DMP as a benchmark Model (see ``lfd.bench.evaluate``).
+class DMPModel(Model):
+    """A fitted position DMP as a benchmark ``Model``, according to [1]_, Eq. 2.1:
 
-    dmp : the movement_primitives DMP, weights fitted
-    goal : array, shape (d,); duration : mean training duration tau_0, s
+    .. math:: \\tau^2 \\ddot y = \\alpha_y (\\beta_y (g - y) - \\tau \\dot y) + f(z),
+              \\quad z = \\exp(-\\alpha_z t / \\tau),
+
+    a forcing term f of radial basis functions of the phase z, fitted by ridge regression.
+
+    Parameters
+    ----------
+    dmp : DMP
+        The movement_primitives DMP, weights fitted.
+    goal : array, shape (D,)
+        g, the state it runs toward.
+    duration : float
+        tau_0, the mean training duration, s.
+    config : dict
+        Its options and how it was fitted.
+    train_time_s : float
+        Time of the mean-demo computation and ``imitate``, s.
+    integrators : dict of str
+        How its ``reproduce`` and ``rollouts`` step.
+
+    References
+    ----------
+    .. [1] Ijspeert, A. J., Nakanishi, J., Hoffmann, H., Pastor, P., Schaal, S. (2013). Dynamical
+       movement primitives: learning attractor models for motor behaviors. Neural Computation
+       25(2), 328-373. doi:10.1162/NECO_a_00393
     """
 
     learner = "dmp"
-    # Time-indexed: it reaches the goal by construction, so the benchmark skips its 35 x 35
-    # spurious-attractor grid (one Python-level rollout per grid point).
-    autonomous = False
+    autonomous = False   # time-indexed: it reaches the goal by construction
+    velocity_dim: int | None = None   # yd's size: the state's (None) or another (a pose's twist: 6)
 
-    def __init__(self, dmp: DMP, goal: np.ndarray, duration: float, config: DMPConfig,
-                 train_time_s: float) -> None:
+    def __init__(self, dmp: Any, goal: np.ndarray, duration: float, config: dict[str, Any],
+                 train_time_s: float, integrators: dict[str, str]) -> None:
         self.dmp = dmp
         self.goal = np.asarray(goal, dtype=np.float64)
         self.duration = float(duration)
-        self.config = {**asdict(config), "fit": "mean demo"}
+        self.config = config
         self.train_time_s = float(train_time_s)
         self.history: dict[str, Any] = {}
-        self.integrators = {"reproduce": "DMP.step (rk4, compiled), step tau_i / (T - 1)",
-                            "rollouts": "DMP.step (rk4, compiled), the horizon grid's step"}
+        self.integrators = dict(integrators)
 
-    def _configure(self, x0: np.ndarray, tau: float, dt: float) -> None:
-        self.dmp.execution_time_ = tau  # re-times the phase; the weights are kept
+    def _start(self, y0: np.ndarray) -> np.ndarray:
+        """The start state the DMP takes for y0."""
+        return np.asarray(y0, dtype=np.float64)
+
+    def _finish(self, y: np.ndarray) -> np.ndarray:
+        """A run's states, shape (n, D), as the model returns them."""
+        return y
+
+    def _zero_velocity(self) -> np.ndarray:
+        return np.zeros(self.velocity_dim or len(self.goal))
+
+    def _configure(self, y0: np.ndarray, tau: float, dt: float) -> np.ndarray:
+        """Set the start (at rest), the goal, tau and the step; returns the start state."""
+        self.dmp.execution_time_ = tau   # re-times the phase; the weights are kept
         self.dmp.dt_ = dt
-        self.dmp.configure(start_y=np.asarray(x0, dtype=np.float64), start_yd=np.zeros_like(self.goal),
-                           goal_y=self.goal)
+        start = self._start(y0)
+        self.dmp.configure(start_y=start, start_yd=self._zero_velocity(), goal_y=self.goal)
         self.dmp.reset()
+        return start
 
-    def run(self, x0: np.ndarray, tau: float, dt: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Integrate from x0, shape (d,), at rest, for n samples dt apart with time scale tau.
-        Returns y, yd, each shape (n, d)."""
-        self._configure(x0, tau, dt)
+    def run(self, y0: np.ndarray, tau: float, dt: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Integrate from y0, shape (D,), at rest, for n samples dt apart with time scale tau.
+        Returns y, shape (n, D), and yd, shape (n, V)."""
         y = np.empty((n, len(self.goal)))
-        yd = np.empty_like(y)
-        y[0], yd[0] = x0, 0.0
+        yd = np.empty((n, len(self._zero_velocity())))
+        y[0], yd[0] = self._configure(y0, tau, dt), 0.0
         for k in range(1, n):
             y[k], yd[k] = self.dmp.step(y[k - 1], yd[k - 1])
-        return y, yd
+        return self._finish(y), yd
 
     def reproduce(self, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """For each demo x[i], shape (T, d), with times t[i]: the rollout from x[i][0] with
-        tau_i = t[i][-1] - t[i][0] on T uniform samples. Returns y, yd, each (N, T, d)."""
+        """For each demo x[i] with times t[i]: the run from x[i][0] with tau_i = t[i][-1] - t[i][0]
+        on T uniform samples."""
         out = [self.run(xi[0], float(ti[-1] - ti[0]), float(ti[-1] - ti[0]) / (len(ti) - 1), len(ti))
                for xi, ti in zip(x, t)]
         return np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
 
-    def rollouts(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """From each start x0, shape (B, d), with tau = duration, over the uniform grid t: (B, n, d)."""
+    def rollouts(self, x0: np.ndarray, t: np.ndarray, label: str = "rollouts") -> np.ndarray:
+        """From each start with tau = duration, over the uniform grid t."""
         dt = float(t[1] - t[0])
         return np.stack([self.run(p, self.duration, dt, len(t))[0] for p in x0])
 
+    def _goal(self, end: np.ndarray) -> np.ndarray:
+        return np.asarray(end, dtype=np.float64).copy()
+
+    def toward(self, end: np.ndarray) -> Model:
+        """The same weights with goal g = end (the transformation system's goal parameter)."""
+        other = copy.copy(self)
+        other.goal, other.integrators = self._goal(end), dict(self.integrators)
+        return other
+
     def step_time_us(self, points: np.ndarray, calls: int) -> float:
-        """Median microseconds of one ``DMP.step`` over ``calls`` steps from points[0]."""
+        """Median microseconds (over ``TIMING_REPEATS``) of one ``step`` over ``calls`` steps from
+        points[0], at the demos' pace."""
         per_call = []
         for _ in range(TIMING_REPEATS):
-            self._configure(points[0], self.duration, self.duration / max(calls, 1))
-            y, yd = points[0].copy(), np.zeros_like(self.goal)
+            y, yd = self._configure(points[0], self.duration, self.duration / max(calls, 1)), self._zero_velocity()
             t0 = time.perf_counter()
             for _ in range(calls):
                 y, yd = self.dmp.step(y, yd)
             per_call.append((time.perf_counter() - t0) / calls)
         return float(np.median(per_call) * 1e6)
 
-    def grid(self, gx: np.ndarray, gy: np.ndarray) -> None:
-        """A DMP has no velocity field to draw."""
-        return None
+    def simulate(self, x0: np.ndarray, t: np.ndarray, kick_at: int | None = None,
+                 kicks: np.ndarray | None = None) -> np.ndarray:
+        """Its own step with dt = the grid's step and tau = duration; a kick moves the state."""
+        x0 = np.atleast_2d(np.asarray(x0, dtype=np.float64))
+        return np.stack([self._kicked(p, t, kick_at, None if kicks is None else kicks[i]) for i, p in enumerate(x0)])
+
+    def _kicked(self, x0: np.ndarray, t: np.ndarray, kick_at: int | None, kick: np.ndarray | None) -> np.ndarray:
+        y = np.empty((len(t), len(x0)))
+        y[0] = self._configure(x0, self.duration, float(t[1] - t[0]))
+        yd = self._zero_velocity()
+        for k in range(1, len(t)):
+            y[k], yd = self.dmp.step(y[k - 1], yd)
+            if kick_at is not None and k == kick_at:
+                y[k] = y[k] + kick
+        return self._finish(y)
+
+    def simulate_demos(self, demos: DemoSet) -> np.ndarray:
+        """``reproduce`` of the demos' positions: already its own step on each demo's clock."""
+        return self.reproduce(demos.x, demos.t)[0]
+
+    def control_step(self, x0: np.ndarray) -> Callable[[np.ndarray], Any]:
+        """One ``step`` from x0 with tau = duration at ``CONTROL_DT``."""
+        self._configure(x0, self.duration, CONTROL_DT)
+        yd = self._zero_velocity()
+        return lambda x: self.dmp.step(x, yd)
+
+
+class CartesianDMPModel(DMPModel):
+    """A fitted ``CartesianDMP`` (position and orientation) as a benchmark ``Model`` on poses
+    (x, y, z, qw, qx, qy, qz), according to [1]_: the position part is ``DMPModel``'s, and the
+    orientation, a unit quaternion q with angular velocity omega,
+
+    .. math:: \\tau^2 \\dot\\omega = \\alpha_y (\\beta_y 2 \\log(g_q * \\bar q) - \\tau \\omega) + f_{rot}(z),
+              \\quad q(t + dt) = \\exp(dt\\, \\omega / 2) * q(t),
+
+    2 log the rotation vector (the shorter way round), * the quaternion product. Its yd is the
+    twist (v, omega), shape (6,); its orientations come back sign-continuous.
+
+    References
+    ----------
+    .. [1] Ude, A., Nemec, B., Petric, T., Morimoto, J. (2014). Orientation in Cartesian space
+       dynamic movement primitives. IEEE International Conference on Robotics and Automation
+       (ICRA), 2997-3004. doi:10.1109/ICRA.2014.6907291
+    """
+
+    velocity_dim = 6
+
+    def _start(self, y0: np.ndarray) -> np.ndarray:
+        y0 = np.asarray(y0, dtype=np.float64)
+        return np.concatenate([y0[:3], y0[3:] / np.linalg.norm(y0[3:])])
+
+    def _finish(self, y: np.ndarray) -> np.ndarray:
+        return np.concatenate([y[:, :3], continuous(y[:, 3:])], axis=1)
+
+    def _goal(self, end: np.ndarray) -> np.ndarray:
+        """end's quaternion signed like the current goal's."""
+        goal = super()._goal(end)
+        if float(goal[3:] @ self.goal[3:]) < 0:
+            goal[3:] *= -1.0
+        return goal
 
 
 def fit_dmp(demos: DemoSet, **options: Any) -> DMPModel:
-    """Fit one DMP to the mean of ``demos`` (see the module docstring)."""
+    """Fit one DMP to the mean of ``demos`` (module docstring)."""
     config = make_config(**options)
     t0 = time.perf_counter()
     mean_x = demos.x.mean(axis=0)                                   # (T, d)
@@ -208,104 +285,9 @@ def fit_dmp(demos: DemoSet, **options: Any) -> DMPModel:
               n_weights_per_dim=config.n_weights_per_dim, alpha_y=config.alpha_y, beta_y=config.beta_y)
     dmp.imitate(grid, mean_x, regularization_coefficient=config.regularization,
                 allow_final_velocity=config.allow_final_velocity)
-    return DMPModel(dmp, demos.goal, duration, config, time.perf_counter() - t0)
-
-
-class CartesianDMPModel:
-    """A fitted ``CartesianDMP`` (position and orientation) as a robot-tasks pose model
-    (``lfd.bench.robottasks.PoseModel``).
-
-    Parameters
-    ----------
-    dmp : CartesianDMP
-        The movement_primitives DMP, weights fitted.
-    goal : array, shape (3,)
-        The common goal position, m.
-    goal_q : array, shape (4,)
-        The common goal orientation, a unit quaternion (w, x, y, z).
-    duration : float
-        tau_0, the mean training duration, s.
-    config : CartesianDMPConfig
-        Its options.
-    train_time_s : float
-        Time of the mean-demo computation and ``imitate``, s.
-    """
-
-    learner = "dmp"
-    autonomous = False   # time-indexed: it reaches the goal by construction
-
-    def __init__(self, dmp: CartesianDMP, goal: np.ndarray, goal_q: np.ndarray, duration: float,
-                 config: CartesianDMPConfig, train_time_s: float) -> None:
-        self.dmp = dmp
-        self.goal = np.asarray(goal, dtype=np.float64)
-        self.goal_q = np.asarray(goal_q, dtype=np.float64)
-        self.duration = float(duration)
-        self.config = {**asdict(config), "fit": "mean demo (positions; chordal mean quaternions)",
-                       "model": "CartesianDMP"}
-        self.train_time_s = float(train_time_s)
-        self.history: dict[str, Any] = {}
-        self.integrators = {"reproduce": "CartesianDMP.step (position rk4, orientation Euler at int_dt), "
-                                         "step tau_i / (T - 1)",
-                            "rollouts": "CartesianDMP.step, the horizon grid's step"}
-
-    def _configure(self, x0: np.ndarray, q0: np.ndarray, tau: float, dt: float) -> np.ndarray:
-        """Set the start pose (at rest), the goal pose, tau and the step; returns the start y (7,)."""
-        self.dmp.execution_time_ = tau   # re-times the phase; the weights are kept
-        self.dmp.dt_ = dt
-        q0 = np.asarray(q0, dtype=np.float64)
-        y0 = np.concatenate([np.asarray(x0, dtype=np.float64), q0 / np.linalg.norm(q0)])
-        self.dmp.configure(start_y=y0, start_yd=np.zeros(6), goal_y=np.concatenate([self.goal, self.goal_q]))
-        self.dmp.reset()
-        return y0
-
-    def run(self, x0: np.ndarray, q0: np.ndarray, tau: float, dt: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Integrate from the pose x0 (3,), q0 (4,) at rest for n samples dt apart with time scale tau.
-
-        Returns
-        -------
-        x : array, shape (n, 3)
-            Positions, m.
-        q : array, shape (n, 4)
-            Unit quaternions (w, x, y, z), sign-continuous.
-        """
-        y = np.empty((n, 7))
-        y[0] = self._configure(x0, q0, tau, dt)
-        yd = np.zeros(6)
-        for k in range(1, n):
-            y[k], yd = self.dmp.step(y[k - 1], yd)
-        return y[:, :3], continuous(y[:, 3:])
-
-    def reproduce(self, x0: np.ndarray, q0: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """From each demo's start pose x0[i] (N, 3), q0[i] (N, 4), with tau_i = t[i][-1] - t[i][0] on
-        the T samples of t[i], t of shape (N, T). Returns x (N, T, 3) and q (N, T, 4)."""
-        out = [self.run(xi, qi, float(ti[-1] - ti[0]), float(ti[-1] - ti[0]) / (len(ti) - 1), len(ti))
-               for xi, qi, ti in zip(x0, q0, t)]
-        return np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
-
-    def rollouts(self, x0: np.ndarray, q0: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """From each start pose x0 (B, 3), q0 (B, 4), with tau = duration, over the uniform grid t (n,).
-        Returns x (B, n, 3) and q (B, n, 4)."""
-        dt = float(t[1] - t[0])
-        out = [self.run(xi, qi, self.duration, dt, len(t)) for xi, qi in zip(x0, q0)]
-        return np.stack([o[0] for o in out]), np.stack([o[1] for o in out])
-
-    def step_time_us(self, x: np.ndarray, q: np.ndarray, calls: int) -> float:
-        """Median microseconds (over TIMING_REPEATS) of one ``CartesianDMP.step`` over ``calls``
-        steps from the pose x[0] (3,), q[0] (4,) (x (P, 3), q (P, 4)), at the demos' pace."""
-        per_call = []
-        for _ in range(TIMING_REPEATS):
-            y, yd = self._configure(x[0], q[0], self.duration, self.duration / max(calls, 1)), np.zeros(6)
-            t0 = time.perf_counter()
-            for _ in range(calls):
-                y, yd = self.dmp.step(y, yd)
-            per_call.append((time.perf_counter() - t0) / calls)
-        return float(np.median(per_call) * 1e6)
-
-    def step_times_us(self, x: np.ndarray, q: np.ndarray, calls: int) -> tuple[float, float]:
-        """(single-point step, pose step) in microseconds, as ``lfd.bench.robottasks.PoseModel``
-        asks: both are one ``CartesianDMP.step`` (``step_time_us``), a pose in and the next pose out."""
-        us = self.step_time_us(x, q, calls)
-        return us, us
+    return DMPModel(dmp, demos.goal, duration, {**asdict(config), "fit": "mean demo"}, time.perf_counter() - t0,
+                    {"reproduce": "DMP.step (rk4, compiled), step tau_i / (T - 1)",
+                     "rollouts": "DMP.step (rk4, compiled), the horizon grid's step"})
 
 
 def mean_pose_demo(demos: DemoSet) -> tuple[np.ndarray, np.ndarray]:
@@ -320,7 +302,8 @@ def mean_pose_demo(demos: DemoSet) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_cartesian_dmp(demos: DemoSet, **options: Any) -> CartesianDMPModel:
     """Fit one ``CartesianDMP`` to the mean demo of the pose set ``demos`` (``mean_pose_demo``, the
-    module docstring), on a uniform grid over the mean duration; options as ``make_cartesian_config``'s."""
+    module docstring); options as ``make_cartesian_config``'s. Its goal is (goal, goal_q), goal_q
+    signed like the mean demo's last quaternion."""
     config = make_cartesian_config(**options)
     if demos.goal_q is None:
         raise ConfigError(f"dmp: {demos.name} holds no orientations; use fit_dmp")
@@ -334,4 +317,9 @@ def fit_cartesian_dmp(demos: DemoSet, **options: Any) -> CartesianDMPModel:
                 allow_final_velocity=config.allow_final_velocity)
     goal_q = np.asarray(demos.goal_q, dtype=np.float64)
     goal_q = goal_q if float(goal_q @ mean_q[-1]) >= 0 else -goal_q   # the sign the mean demo ends with
-    return CartesianDMPModel(dmp, demos.goal, goal_q, duration, config, time.perf_counter() - t0)
+    return CartesianDMPModel(
+        dmp, np.concatenate([demos.goal, goal_q]), duration,
+        {**asdict(config), "fit": "mean demo (positions; chordal mean quaternions)", "model": "CartesianDMP"},
+        time.perf_counter() - t0,
+        {"reproduce": "CartesianDMP.step (position rk4, orientation Euler at int_dt), step tau_i / (T - 1)",
+         "rollouts": "CartesianDMP.step, the horizon grid's step"})

@@ -2,34 +2,26 @@
 
 Executors (``EXECUTORS``; both through ``run_parallel``, whose callbacks run in THIS process):
 
-* ``local``: a ``ProcessPoolExecutor`` (forkserver context where available, else spawn) with
-  one thread each for torch and the native pools (BLAS, OpenMP) and SIGINT ignored: Ctrl-C
-  reaches only the parent, which stops the
-  pool and its processes; a cell cut short leaves no file. Each worker watches a pipe from its
-  parent and ends when the parent dies (kill -9 included). A worker that dies takes the pool with
-  it: the lost cells run again on a new pool, each up to ``MAX_ATTEMPTS`` times.
-* ``ray``: Ray tasks (one CPU, one thread each for torch and the native pools). Without an address Ray starts a local
-  instance with ``workers`` CPUs (no dashboard); with ``address`` (``HOST:PORT``, ``ray://HOST:PORT``
-  or ``auto``; default ``$RAY_ADDRESS``) it joins that cluster, and the tasks run on any of its
-  nodes. A task returns the record and the NPZ bytes and THIS process writes the files, so the
-  cache needs no shared file system. A task whose worker Ray reports lost (its process killed, its
-  node gone) is submitted again, up to ``MAX_ATTEMPTS`` times. Ray is imported only here
-  (``pip install 'lfd-arm[ray]'``); ``ray.shutdown()`` runs on every exit, Ctrl-C and SIGTERM
-  included (``ray.init``'s own SIGTERM handler is replaced by the caller's again). The tasks still
-  running are not cancelled first: ``ray.cancel`` racing a task's completion aborts the driver
-  inside Ray ("Check failed: ... submissible_tasks_"); ``ray.shutdown`` ends a local instance
-  with its workers, and a cluster's raylets end the tasks of a driver that has left. A local
-  instance gets a watchdog process that ends its processes when this one dies (kill -9 included).
+* ``local``: a ``ProcessPoolExecutor`` (forkserver context where available, else spawn), one
+  thread each for torch and the native pools (BLAS, OpenMP), SIGINT ignored: Ctrl-C reaches only
+  the parent, which stops the pool; an item cut short leaves no file. Each worker ends when its
+  parent dies (kill -9 included). A worker that dies takes the pool with it: the lost items run
+  again on a new pool, each up to ``MAX_ATTEMPTS`` times. A worker imports ``fn`` by its module's
+  name from this process's import path (nothing here edits ``sys.path``).
+* ``ray``: Ray tasks (one CPU, one thread each). Without an address Ray starts a local instance
+  with ``workers`` CPUs; with ``address`` (``HOST:PORT``, ``ray://HOST:PORT`` or ``auto``; default
+  ``$RAY_ADDRESS``) it joins that cluster. A task returns its result and THIS process writes the
+  files, so the cache needs no shared file system. A task whose worker Ray reports lost is
+  submitted again, up to ``MAX_ATTEMPTS`` times. Ray is imported only here (``pip install
+  'lfd-arm[ray]'``); ``ray.shutdown()`` runs on every exit, Ctrl-C and SIGTERM included, without
+  cancelling the running tasks first (``_run_ray``); a local instance gets a watchdog process
+  that ends its processes when this one dies. Joining a cluster with token authentication needs
+  ``RAY_AUTH_MODE=token`` and its token (``_init_error`` says so in one line).
 
 Each finished item comes with where it ran (``on_done``'s ``node``: ``{"host"}`` on the local
-pool; ``{"host", "ip", "ray_node_id"}`` of the Ray node), for the records' ``node`` field: a
-host field, not a result, so comparisons of results leave it out (with the timings).
-
-Joining a cluster started by ``ray start --head`` on a machine with a Ray token
-(``~/.ray/auth_token``: Ray then turns token authentication on) needs ``RAY_AUTH_MODE=token`` here
-and the same token; without it the join fails after Ray's retries with one line saying so.
-
-Used by the LASA benchmark (``lfd.bench.runner``) and ``scripts/sweep_arm.py``.
+pool; ``{"host", "ip", "ray_node_id"}`` of the Ray node), for the records' ``node`` field: a host
+field, not a result. Used by the benchmark suites (``lfd.bench.runner``), ``lfd bench tradeoff``
+and the arm sweeps.
 """
 
 from __future__ import annotations
@@ -100,10 +92,9 @@ def check_executor(executor: str, address: str | None = None) -> str | None:
     return address.strip()
 
 
-def _init_worker(paths: tuple[str, ...], alive: Any, started: Any) -> None:
+def _init_worker(alive: Any, started: Any) -> None:
     """Set up a pool worker: SIGINT ignored (the parent stops the pool), one thread for torch and
-    in each native pool (BLAS, OpenMP; ``lfd.threads.limit_native_threads``), the import ``paths``
-    (before any task is unpickled: a forkserver may be older than them), the shared ``started``
+    in each native pool (BLAS, OpenMP; ``lfd.threads.limit_native_threads``), the shared ``started``
     array, warnings on one line, tqdm's lock a thread lock, and a thread that ends the process when
     the parent dies.
 
@@ -118,9 +109,6 @@ def _init_worker(paths: tuple[str, ...], alive: Any, started: Any) -> None:
     from lfd.threads import limit_native_threads
 
     limit_native_threads(1)   # torch, numpy's BLAS, OpenMP: one thread, as in a Ray task and in-process
-    for p in paths:
-        if p not in sys.path:
-            sys.path.append(p)
     _STARTED = started
     warnings.showwarning = _one_line_warning
     threading.Thread(target=_exit_with_parent, args=(alive,), name="lfd-parent-watch", daemon=True).start()
@@ -321,7 +309,8 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, execu
         in any order; ``attempts`` counts the tries it took (1 unless a worker died under it) and
         ``node`` says where the last one ran (``local_node``; Ray: ``ray_node``).
     paths : tuple of str
-        Directories the workers need on their import path.
+        Directories Ray's workers need on their ``PYTHONPATH`` besides this ``lfd``'s (a local pool's
+        workers start with this process's import path).
     on_failed : callable, optional
         ``on_failed(index, failure)`` for an item given up (``Failure``): a worker process died
         under it ``max_attempts`` times. Without it, such items end the call with a ``WorkerError``
@@ -353,7 +342,7 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], workers: int, execu
             for i, item in enumerate(items):
                 done(i, fn(item), 1, here)
     else:
-        _run_local(fn, items, workers, paths, done, failed, max_attempts)
+        _run_local(fn, items, workers, done, failed, max_attempts)
     if lost:
         raise WorkerError(f"{len(lost)} run(s) lost: a worker process died under each of them "
                           f"{max_attempts} times ({lost[0][1].reason})")
@@ -371,8 +360,8 @@ def _death(exitcode: int | None) -> str:
     return f"the worker process exited with code {exitcode}"
 
 
-def _run_local(fn: Callable[[Any], Any], items: list[Any], workers: int, paths: tuple[str, ...],
-               done: OnDone, failed: Callable[[int, Failure], None], max_attempts: int) -> None:
+def _run_local(fn: Callable[[Any], Any], items: list[Any], workers: int, done: OnDone,
+               failed: Callable[[int, Failure], None], max_attempts: int) -> None:
     """``run_parallel`` on local process pools: a new pool after each worker death."""
     here = local_node()
     ctx = _context()
@@ -385,7 +374,7 @@ def _run_local(fn: Callable[[Any], Any], items: list[Any], workers: int, paths: 
         while queue:
             progress = False
             pool = ProcessPoolExecutor(max_workers=min(workers, len(queue)), mp_context=ctx,
-                                       initializer=_init_worker, initargs=(tuple(paths), alive_r, started))
+                                       initializer=_init_worker, initargs=(alive_r, started))
             procs: dict[int, Any] = {}
             futures: dict[Future, int] = {}
             broken: list[int] = []
@@ -456,9 +445,12 @@ def _run_ray(fn: Callable[[Any], Any], items: list[Any], workers: int, address: 
              paths: tuple[str, ...], done: OnDone, failed: Callable[[int, Failure], None],
              max_attempts: int) -> None:
     """``run_parallel`` on Ray (``_ray_items``), then ``ray.shutdown()``: on an exception, Ctrl-C
-    included, nothing is cancelled first (module docstring), and the locals of the frames it passed
-    through are dropped first: an ``ObjectRef`` freed after ``ray.shutdown`` ends the process at
-    once with exit code 1 (Ray's core worker is gone), and its traceback would hold some."""
+    included, nothing is cancelled first (``ray.cancel`` racing a task's completion aborts the
+    driver inside Ray, "Check failed: ... submissible_tasks_"; ``ray.shutdown`` ends a local
+    instance with its workers, and a cluster's raylets end the tasks of a driver that has left),
+    and the locals of the frames it passed through are dropped first: an ``ObjectRef`` freed after
+    ``ray.shutdown`` ends the process at once with exit code 1 (Ray's core worker is gone), and its
+    traceback would hold some."""
     reaper = None if address else _start_reaper()
     try:
         ray = start_ray(workers, address, paths)

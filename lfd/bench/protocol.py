@@ -6,7 +6,8 @@ of ``LasaProtocol``; its hash keys the result cache, so changing any of them rec
 - Data: ``lfd.lasa(shape)``, 7 demos x 1000 samples, 2-D, in mm, goal (mean end point) at the
   origin to 1e-3 mm. No resampling, no filtering beyond ``DemoSet``'s smoothed velocities; the
   learners normalise internally (``lfd.normalization``: x_n = (x - goal) / s, s = max |x - goal|).
-- Split: the first ``train_demos`` demos train, the rest are held-out test demos.
+- Splits (``lfd.bench.suite``): in-sample (all 7 demos train and are scored) and held-out
+  (leave one demo out).
 - Starts (the same for every learner and seed): the 7 demo starts; a ring of ``ring_points``
   points at distance ``ring_radius * extent`` around each demo start (extent = the larger side
   of the demos' bounding box); ``box_points`` points uniform in the bounding box grown by
@@ -23,18 +24,17 @@ import hashlib
 import json
 import zlib
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from lfd.demos import LASA_SHAPES, DemoSet
+from lfd.demos import DemoSet
 from lfd.errors import ConfigError
 from lfd.metrics import grid_starts as metric_grid_starts
 from lfd.validate import check_ints
 
-PROTOCOL_VERSION = 2  # 2: dtw_per_sample, chamfer_dtwd_std, lobe-sum swept area, spurious grid
+PROTOCOL_VERSION = 3  # 2: dtw_per_sample, chamfer_dtwd_std, lobe-sum swept area, spurious grid; 3: held-out split
 N_LASA_DEMOS = 7
-QUICK_SHAPES: tuple[str, ...] = ("Angle", "Sine", "GShape")
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,6 @@ class LasaProtocol:
     ``ConfigError``. ``to_dict`` (with ``PROTOCOL_VERSION``) keys the result cache.
     """
 
-    train_demos: int = N_LASA_DEMOS  # K: demos 0..K-1 train, demos K..6 are held out
     ring_radius: float = 0.1         # ring starts at ring_radius x extent around each demo start
     ring_points: int = 8             # starts on each ring
     box_points: int = 64             # starts uniform in the demos' bounding box grown by box_grow
@@ -61,8 +60,6 @@ class LasaProtocol:
     timing_calls: int = 500          # single-point evaluations timed per repeat (5 repeats, median)
 
     def __post_init__(self) -> None:
-        if not 1 <= self.train_demos <= N_LASA_DEMOS:
-            raise ConfigError(f"--train-demos must be between 1 and {N_LASA_DEMOS}, got {self.train_demos}")
         check_ints(self, (("ring_points", 0, None), ("box_points", 0, None), ("dtw_step", 1, None),
                           ("horizon_stride", 1, None), ("spurious_grid", 2, None)), error=ConfigError)
         if not (self.radius_mm > 0 and self.horizon_factor > 0 and self.ring_radius >= 0):
@@ -79,11 +76,6 @@ def stable_hash(obj: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def resolve_shapes(spec: str, quick: bool = False) -> list[str]:
-    """``all`` (or, with quick, the QUICK_SHAPES), or a comma list of LASA shape names."""
-    return resolve_names(spec, LASA_SHAPES, QUICK_SHAPES if quick else None, "LASA shape(s)")
-
-
 def resolve_names(spec: str, known: tuple[str, ...], quick: tuple[str, ...] | None, what: str) -> list[str]:
     """``all`` (``known``, or ``quick`` when given), or a comma list of names from ``known``, in order,
     without repeats; ``ConfigError`` naming ``what`` for an unknown or empty list."""
@@ -94,13 +86,6 @@ def resolve_names(spec: str, known: tuple[str, ...], quick: tuple[str, ...] | No
     if unknown or not names:
         raise ConfigError(f"unknown {what} {', '.join(unknown) or '(none given)'}; known: {', '.join(known)}")
     return list(dict.fromkeys(names))
-
-
-def split(demos: DemoSet, train_demos: int) -> tuple[DemoSet, DemoSet | None]:
-    """(train, test): demos 0..K-1 and K..N-1 (None when K = N)."""
-    train = demos.subset(list(range(train_demos)))
-    test = demos.subset(list(range(train_demos, demos.n_demos))) if train_demos < demos.n_demos else None
-    return train, test
 
 
 @dataclass(frozen=True)
@@ -138,7 +123,21 @@ def starts(demos: DemoSet, shape: str, protocol: LasaProtocol) -> Starts:
     return Starts(demo=x0, ring=ring, box=box)
 
 
-def horizon(demos: DemoSet, protocol: LasaProtocol) -> tuple[float, int]:
+class HorizonSettings(Protocol):
+    """A protocol's horizon settings (``LasaProtocol``, ``lfd.bench.robottasks.RobotTasksProtocol``)."""
+
+    @property
+    def horizon_factor(self) -> float:
+        """The horizon, x the longest demo's duration."""
+        ...
+
+    @property
+    def horizon_stride(self) -> int:
+        """The output step, in demo sample intervals."""
+        ...
+
+
+def horizon(demos: DemoSet, protocol: HorizonSettings) -> tuple[float, int]:
     """(H, n): H = horizon_factor * max_i (t_i[-1] - t_i[0]); n samples so that the step
     H / (n - 1) is at most horizon_stride times the demos' mean sample interval."""
     durations = demos.t[:, -1] - demos.t[:, 0]

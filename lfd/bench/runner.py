@@ -1,24 +1,23 @@
 """Run benchmark cells in parallel local processes, resumably.
 
-A cell is one (learner, shape, seed). Each finished cell is written at once, atomically, as
-``<cache>/<learner>__<shape>__seed<seed>.npz`` (the figure arrays), then ``.json`` (the record,
-which marks the cell done). The record carries ``hash`` = stable_hash(protocol, learner, resolved
-config, shape, seed), the key of its inputs; the JSON file adds ``npz_sha256`` (the sha256 of the
-NPZ file) and ``checksum`` (the sha256 of the canonical JSON of everything else in it). A later run
-takes a cell from the cache only when both checksums hold and the hash matches, so an interrupted
-run resumes where it stopped and a changed protocol or option recomputes only what it changes. A
-bad entry (unreadable, edited, truncated, its NPZ missing) is never used: it is computed again
-after one warning line naming it (``read_cached``).
+A cell is one learner, unit, seed and split of a suite (``lfd.bench.suite.Cell``; the field-level
+obstacle sweep's and the Panda sweep's cells work alike). Each finished cell is written at once,
+atomically, as ``<cache>/<stem>.npz`` (the figure arrays), then ``.json`` (the record, which marks
+the cell done). The record carries ``hash``, the key of its inputs (the cell's); the JSON file adds
+``npz_sha256`` (the sha256 of the NPZ file) and ``checksum`` (the sha256 of the canonical JSON of
+everything else in it). A later run takes a cell from the cache only when both checksums hold and
+the hash matches, so an interrupted run resumes where it stopped and a changed protocol or option
+recomputes only what it changes. A bad entry (unreadable, edited, truncated, its NPZ missing) is
+never used: it is computed again after one warning line naming it (``read_cached``).
 
 The cells run through ``lfd.bench.executor.run_parallel`` (a local pool or Ray, surviving a dead
 worker). Both compute each cell with the same code and seeds; their numbers agree to rounding across
-processes (tests/test_bench.py, rtol 1e-6). A record's ``attempts`` counts the tries it took and
-its ``node`` says where the last one ran (``run_parallel``: the host, and on Ray the node's IP and id).
+processes (tests/test_bench.py). A record's ``attempts`` counts the tries it took and its ``node``
+says where the last one ran (``run_parallel``: the host, and on Ray the node's IP and id).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import io
 import json
@@ -34,48 +33,11 @@ import torch
 from tqdm.auto import tqdm
 
 from lfd.bench.executor import Failure, check_executor, run_parallel
-from lfd.bench.protocol import LasaProtocol, stable_hash
+from lfd.errors import LfdError
 from lfd.io import atomic_write, finite_or_none, write_json
 
 # cells of slower learners first, so the pool's tail is short
 LEARNER_ORDER: tuple[str, ...] = ("node", "contraction", "tracking", "dmp")
-
-
-def resolve_config(learner: str, options: dict[str, Any]) -> dict[str, Any]:
-    """The learner's full config for ``options`` (defaults filled in); ConfigError if invalid."""
-    if learner == "dmp":
-        from lfd.bench.dmp import make_config
-
-        return dataclasses.asdict(make_config(**options))
-    from lfd.learners import get_learner
-
-    return dataclasses.asdict(get_learner(learner).make_config(**options))
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One unit of work: one learner trained with one seed on one LASA shape, and scored.
-
-    Build it with ``make``, which computes ``hash``; each field is described beside it.
-    """
-
-    learner: str                                  # a name of lfd.learners.LEARNERS, or "dmp"
-    shape: str                                    # a LASA shape name
-    seed: int                                     # the learner's seed
-    options: dict[str, Any] = field(hash=False)   # the learner's keyword options, as for lfd.train
-    protocol: LasaProtocol = field(hash=False)    # the benchmark's fixed settings
-    hash: str = ""                                # the cache key: protocol, learner, full config, shape, seed
-
-    @classmethod
-    def make(cls, learner: str, shape: str, seed: int, options: dict[str, Any],
-             protocol: LasaProtocol) -> Cell:
-        key = {"protocol": protocol.to_dict(), "learner": learner,
-               "config": resolve_config(learner, options), "shape": shape, "seed": seed}
-        return cls(learner, shape, seed, dict(options), protocol, stable_hash(key))
-
-    @property
-    def stem(self) -> str:
-        return f"{self.learner}__{self.shape}__seed{self.seed}"
 
 
 @dataclass
@@ -85,14 +47,15 @@ class BenchResult:
     Attributes
     ----------
     records : list of dict
-        One JSON record per cell, in the order of the cells given (``evaluate_cell``).
+        One JSON record per cell, in the order of the cells given (``lfd.bench.suite.Suite.evaluate``).
     computed : list of str
-        Stems (``Cell.stem``) of the cells trained and scored in this run.
+        Stems of the cells trained and scored in this run.
     cached : list of str
         Stems of the cells read from the cache.
     failed : list of dict
-        The cells given up (``run_parallel``), each ``{"cell": stem, "reason", "attempts"}``; they
-        have no record and no cache entry, so a later run tries them again.
+        The cells given up (``run_parallel``), each ``{"cell": stem, "reason", "attempts"}``, or
+        refused by their learner (``"refused": True``); they have no record and no cache entry, so a
+        later run tries them again.
     """
 
     records: list[dict[str, Any]]
@@ -108,7 +71,7 @@ def _entry_checksum(entry: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def read_cached(cell: Cell, cache: str | Path) -> tuple[dict[str, Any] | None, str | None]:
+def read_cached(cell: Any, cache: str | Path) -> tuple[dict[str, Any] | None, str | None]:
     """Check the cache entry of ``cell`` (its JSON and NPZ, module docstring).
 
     Returns
@@ -147,32 +110,30 @@ def read_cached(cell: Cell, cache: str | Path) -> tuple[dict[str, Any] | None, s
     return {k: v for k, v in entry.items() if k not in ("checksum", "npz_sha256")}, None
 
 
-def cached_record(cell: Cell, cache: str | Path) -> dict[str, Any] | None:
-    """The cell's record if its cache entry is good and of these inputs (``read_cached``), else None."""
-    return read_cached(cell, cache)[0]
-
-
-def load_arrays(cache: str | Path, record: dict[str, Any]) -> dict[str, np.ndarray]:
-    """The figure arrays of a record (see ``lfd.bench.evaluate.evaluate_cell``)."""
-    stem = f"{record['learner']}__{record['shape']}__seed{record['seed']}"
+def load_arrays(cache: str | Path, stem: str) -> dict[str, np.ndarray]:
+    """The figure arrays of the cell ``stem`` from its cache entry."""
     with np.load(Path(cache) / f"{stem}.npz", allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 
 
-def compute_cell(cell: Cell) -> tuple[dict[str, Any], bytes]:
-    """Train and score one cell: its record (with ``hash`` and ``cell_s``, the wall time of
-    training and scoring) and its figure arrays as NPZ bytes. Writes nothing."""
-    from lfd.bench.evaluate import evaluate_cell
-
+def compute_cell(cell: Any) -> tuple[dict[str, Any], bytes]:
+    """Train and score one cell (``cell.evaluate()``): its record (with ``hash`` and ``cell_s``,
+    the wall time of training and scoring) and its figure arrays as NPZ bytes; writes nothing. A
+    learner that refuses the unit (an ``LfdError``, e.g. demos it cannot train on) gives
+    ``({"error": one line}, b"")``."""
     t0 = time.perf_counter()
-    record, arrays = evaluate_cell(cell.learner, cell.shape, cell.seed, cell.options, cell.protocol)
+    try:
+        record, arrays = cell.evaluate()
+    except LfdError as e:
+        text = str(e).strip()
+        return {"error": (text.splitlines()[0] if text else type(e).__name__)[:300]}, b""
     record = finite_or_none({"hash": cell.hash, **record, "cell_s": time.perf_counter() - t0})
     buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]
+    np.savez_compressed(buf, **arrays)
     return record, buf.getvalue()
 
 
-def store_cell(cell: Cell, cache: str | Path, record: dict[str, Any], npz: bytes) -> dict[str, Any]:
+def store_cell(cell: Any, cache: str | Path, record: dict[str, Any], npz: bytes) -> dict[str, Any]:
     """Write a computed cell: its NPZ, then its JSON (the JSON marks it done), the JSON carrying
     the NPZ's sha256 and its own checksum. Returns the record (without the two checksums)."""
     entry = {**finite_or_none(record), "npz_sha256": hashlib.sha256(npz).hexdigest()}
@@ -182,12 +143,7 @@ def store_cell(cell: Cell, cache: str | Path, record: dict[str, Any], npz: bytes
     return {k: v for k, v in entry.items() if k not in ("checksum", "npz_sha256")}
 
 
-def run_cell(cell: Cell, cache: str) -> dict[str, Any]:
-    """Train and score one cell and write it to ``cache`` (``compute_cell``, ``store_cell``)."""
-    return store_cell(cell, cache, *compute_cell(cell))
-
-
-def _worker_cell(cell: Cell) -> tuple[dict[str, Any], bytes]:
+def _worker_cell(cell: Any) -> tuple[dict[str, Any], bytes]:
     """``compute_cell`` in a worker process (local pool or Ray), with one torch thread."""
     torch.set_num_threads(1)
     return compute_cell(cell)
@@ -196,15 +152,16 @@ def _worker_cell(cell: Cell) -> tuple[dict[str, Any], bytes]:
 def run_cells(cells: Sequence[Any], cache: str | Path, workers: int = 1, fresh: bool = False,
               progress: bool = True, executor: str = "local", address: str | None = None,
               compute: Callable[[Any], tuple[dict[str, Any], bytes]] | None = None,
-              desc: str = "lasa") -> BenchResult:
+              desc: str = "bench") -> BenchResult:
     """Run every cell not already in ``cache`` (all of them with ``fresh``), ``workers`` at a
     time, on ``executor`` (module docstring; ``local`` with 1 worker: in this process, with one
     torch thread; ``ray`` with ``address``: on that cluster). A bad cache entry is computed again
     after one ``RuntimeWarning`` naming it. A cell whose worker process dies is tried again, up to
     ``MAX_ATTEMPTS`` times, then listed in ``BenchResult.failed`` and left out of the records and
-    the cache. ``compute`` (default: a LASA cell's) maps a cell (with ``stem`` and ``learner``, as
-    ``Cell``) to (record, npz bytes); a record with an ``error`` is a cell its learner refused: listed
-    in ``failed`` (``refused``), not cached, so a later run tries it again. Returns records in the
+    the cache. ``compute`` (default: ``compute_cell``, with one torch thread) maps a cell (with
+    ``stem``, ``learner`` and ``hash``, as ``lfd.bench.suite.Cell``) to (record, npz bytes); a
+    record with an ``error`` is a cell its learner refused: listed in ``failed`` (``refused``),
+    not cached, so a later run tries it again. Returns records in the
     order of ``cells``."""
     address = check_executor(executor, address)
     cache = Path(cache)

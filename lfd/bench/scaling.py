@@ -1,5 +1,5 @@
 """Scaling curves of the learners: training time, single-point time and accuracy against the size
-of the problem (``scripts/scaling.py`` writes them into reports/scaling.md).
+of the problem (``sim.studies.scaling``, run by ``scripts/scaling.py``, writes them into reports/scaling.md).
 
 Three sizes, each on LASA demos (``lfd.demos.lasa``):
 
@@ -9,12 +9,12 @@ Three sizes, each on LASA demos (``lfd.demos.lasa``):
 - the number of demos N (the first N demos of one shape);
 - the samples per demo T (every demo resampled in time to T samples, ``resample_demos``).
 
-One measurement (``measure``) trains a learner with ``lfd.bench.evaluate.fit`` (``lfd.train`` for
+One measurement (``measure``) trains a learner with ``lfd.bench.spaces.fit`` (``lfd.train`` for
 the field learners, the DMP baseline of ``lfd.bench.dmp`` for ``dmp``), records its training CPU time
 (``time.process_time``, the field learners' ``history["train_cpu_s"]``) and wall time, times one
 single-point evaluation (``VelocityField.single_point_evaluator`` on demo points; a ``DMP.step``
 for the DMP), and scores the reproductions from the demos' starts (``Model.reproduce`` of
-``lfd.bench.evaluate``) of the same motions at LASA's own 1000 samples (``cached_measure``), so every
+``lfd.bench.model``) of the same motions at LASA's own 1000 samples (``cached_measure``), so every
 point of the T curve is scored alike: the time-aligned RMSE and the DTW distance per sample, both per
 2-D shape (``block_errors``). ``fit_exponent`` gives the least-squares slope of log(cost) against
 log(size). ``cached_measure`` keeps one JSON file per point, so an interrupted run resumes;
@@ -23,28 +23,34 @@ log(size). ``cached_measure`` keeps one JSON file per point, so an interrupted r
 
 from __future__ import annotations
 
+import cProfile
 import dataclasses
 import hashlib
 import json
 import math
+import pstats
 import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 from lfd import metrics
+from lfd.bench.fields import FieldModel
+from lfd.bench.model import Model
+from lfd.bench.spaces import DMP, fit, resolve_config
 from lfd.demos import LASA_SHAPES, DemoSet, lasa
 from lfd.io import write_json
+from lfd.learners import train
 from lfd.threads import torch_threads
 
 __all__ = ["STACK_SHAPES", "DIMS", "DEMO_COUNTS", "SAMPLE_COUNTS", "CURVES", "BASE_DEMOS", "BASE_SAMPLES", "BASE_DIM",
            "Point", "resample_demos", "stacked_lasa", "fit_exponent", "block_errors", "single_point_us",
-           "measure", "cached_measure", "curve_points", "full_config", "profile_fit", "FORMAT"]
+           "measure", "cached_measure", "curve_points", "full_config", "point_function", "profile_fit", "FORMAT"]
 
 #: the shapes stacked for d = 2, 4, ..., 32, in this order (the first d / 2 of them): the first 16
 #: single-pattern LASA shapes in the data set's order (the Multi_Models sets are left out)
@@ -190,7 +196,7 @@ def block_errors(y: np.ndarray, x: np.ndarray) -> tuple[float, float]:
 def single_point_us(fn: Callable[[np.ndarray], Any], points: np.ndarray, blocks: int = 200,
                     calls: int = 20) -> float:
     """Median microseconds of one call ``fn(p)``: ``blocks`` blocks of ``calls`` calls each over the
-    points in turn (as ``scripts/speed_field.py`` times ``field(x)``), the median of the blocks'
+    points in turn (as ``scripts/speed.py field`` times ``field(x)``), the median of the blocks'
     per-call means; 20 untimed calls warm up first.
 
     Parameters
@@ -251,8 +257,6 @@ def measure(learner: str, demos: DemoSet, options: dict[str, Any] | None = None,
         the reproductions), ``iterations`` (the learner's, where it reports them), ``config`` and
         ``reproduce`` (the solver the reproductions ran with).
     """
-    from lfd.bench.evaluate import FieldModel, fit
-
     options = dict(options or {})
     truth = demos if truth is None else truth
     cpus, walls = [], []
@@ -264,19 +268,16 @@ def measure(learner: str, demos: DemoSet, options: dict[str, Any] | None = None,
             wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
             if model.history.get("interrupted"):
                 raise KeyboardInterrupt   # a partly trained field is no measurement
-            if isinstance(model, FieldModel):   # the learner's own timer: the fit alone
-                cpu = float(model.field.history.get("train_cpu_s", cpu))
-                wall = float(model.field.history.get("train_time_s", wall))
+            if "train_cpu_s" in model.history:   # the learner's own timers (lfd.train's): the fit alone
+                cpu, wall = float(model.history["train_cpu_s"]), model.train_time_s
             cpus.append(cpu)
             walls.append(wall)
             if sum(cpus) >= min_cpu_s or len(cpus) >= max_fits:
                 break
         points = demos.x.reshape(-1, demos.dim)
         points = points[np.linspace(0, len(points) - 1, timing_points).round().astype(int)]
-        if isinstance(model, FieldModel):
-            step_us = single_point_us(model.field.single_point_evaluator(), points)
-        else:
-            step_us = model.step_time_us(points, 1000)
+        fn = point_function(learner, model)
+        step_us = model.step_time_us(points, 1000) if fn is None else single_point_us(fn, points)
         t0 = time.perf_counter()
         y, _ = model.reproduce(truth.x, truth.t)
         reproduce_s = time.perf_counter() - t0
@@ -285,6 +286,23 @@ def measure(learner: str, demos: DemoSet, options: dict[str, Any] | None = None,
             "single_point_us": step_us, "rmse": rmse, "dtw_per_sample": dtw, "reproduce_s": reproduce_s,
             "iterations": model.history.get("iterations"), "config": model.config,
             "reproduce": model.integrators.get("reproduce")}
+
+
+def point_function(learner: str, model: Model) -> Callable[[np.ndarray], Any] | None:
+    """The single-point function of a trained model: a field learner's
+    ``single_point_evaluator()`` (the control loop's path), or None for the DMP baseline, which has
+    no field (its ``DMP.step`` is timed by ``DMPModel.step_time_us``).
+
+    Parameters
+    ----------
+    learner : str
+        ``dmp`` or a field learner.
+    model : Model
+        What ``lfd.bench.spaces.fit`` returned for it.
+    """
+    if learner == DMP:
+        return None
+    return cast(FieldModel, model).field.single_point_evaluator()
 
 
 @dataclass(frozen=True)
@@ -318,14 +336,8 @@ class Point:
 
 def full_config(learner: str, options: dict[str, Any]) -> dict[str, Any]:
     """The learner's config for ``options``, its defaults filled in as they are now (``dmp``: the
-    DMP baseline's, ``lfd.bench.dmp.make_config``)."""
-    if learner == "dmp":
-        from lfd.bench.dmp import make_config
-
-        return dataclasses.asdict(make_config(**options))
-    from lfd.learners import get_learner
-
-    return dataclasses.asdict(get_learner(learner).make_config(**options))
+    DMP baseline's; ``lfd.bench.spaces.resolve_config``)."""
+    return resolve_config(learner, options)
 
 
 def curve_points(learner: str, curve: str, options: dict[str, Any] | None = None,
@@ -409,12 +421,7 @@ def profile_fit(learner: str, demos: DemoSet, options: dict[str, Any] | None = N
         ``cpu_s`` and ``wall_s`` (of the cProfile'd fit), ``ops`` {operator: self CPU s}, ``ops_total_s``
         (all operators' self time), ``backward_s`` and ``functions`` {"file:function": cumulative wall s}.
     """
-    import cProfile
-    import pstats
-
-    from torch.profiler import ProfilerActivity, profile
-
-    from lfd.learners import train
+    from torch.profiler import ProfilerActivity, profile  # (loads torch's profiler only when asked)
 
     options = dict(options or {})
     with warnings.catch_warnings(), torch_threads(1):

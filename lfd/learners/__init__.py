@@ -21,6 +21,7 @@ _REGISTRY: dict[str, str] = {
     "node": "lfd.learners.node:NodeLearner",
     "contraction": "lfd.learners.contraction:ContractionLearner",
     "tracking": "lfd.learners.tracking:TrackingLearner",
+    "stable_node": "lfd.learners.stable_node:StableNodeLearner",
 }
 LEARNERS: tuple[str, ...] = tuple(_REGISTRY)
 

@@ -335,8 +335,8 @@ class ContractionField(ContractingField):
 
     def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
         """x (d,) -> f(x) (d,) in user units: the normalisation, phi, J_phi and the d x d solve of
-        Eq. (C3) in one compiled call (``lfd.learners.flow_kernel``; ``scripts/speed_field.py``
-        measures it; see ``VelocityField.single_point_evaluator``). The numpy twin of phi and J_phi
+        Eq. (C3) in one compiled call (``lfd.learners.flow_kernel``; see
+        ``VelocityField.single_point_evaluator``). The numpy twin of phi and J_phi
         is ``bounded_flow_numpy``."""
         from lfd.learners.flow_kernel import contraction_point_fn
 

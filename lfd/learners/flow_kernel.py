@@ -40,9 +40,9 @@ def _rotation(gen: np.ndarray, k: int, ang: float, z: np.ndarray, rot: np.ndarra
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
-def _swirl(y: np.ndarray, k: int, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
-           gen: np.ndarray, z: np.ndarray, kz: np.ndarray, rot: np.ndarray,
-           step: np.ndarray) -> None:  # pragma: no cover - compiled
+def swirl(y: np.ndarray, k: int, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
+          gen: np.ndarray, z: np.ndarray, kz: np.ndarray, rot: np.ndarray,
+          step: np.ndarray) -> None:  # pragma: no cover - compiled
     """Swirl k, Eq. (F1), in place: y (d,) <- c_k + R z with z = y - c_k, step (d, d) <- its Jacobian
     J_k = R (I + q Kz z^T). z, kz (d,) and rot (d, d) are scratch."""
     d = y.shape[0]
@@ -71,8 +71,8 @@ def _swirl(y: np.ndarray, k: int, centers: np.ndarray, theta: np.ndarray, inv_2r
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
-def _residual(y: np.ndarray, k: int, w1b: np.ndarray, w2: np.ndarray, inv_r2: float, th: np.ndarray,
-              h: np.ndarray, step: np.ndarray) -> None:  # pragma: no cover - compiled
+def residual_block(y: np.ndarray, k: int, w1b: np.ndarray, w2: np.ndarray, inv_r2: float, th: np.ndarray,
+                   h: np.ndarray, step: np.ndarray) -> None:  # pragma: no cover - compiled
     """Residual block k, Eq. (F3), in place: y (d,) <- y + e(y) h(y), step (d, d) <- its Jacobian.
     th (hidden,) and h (d,) are scratch."""
     d = y.shape[0]
@@ -101,7 +101,7 @@ def _residual(y: np.ndarray, k: int, w1b: np.ndarray, w2: np.ndarray, inv_r2: fl
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
-def _left_multiply(step: np.ndarray, jac: np.ndarray, tmp: np.ndarray) -> None:  # pragma: no cover - compiled
+def left_multiply(step: np.ndarray, jac: np.ndarray, tmp: np.ndarray) -> None:  # pragma: no cover - compiled
     """jac (d, d) <- step @ jac in place; tmp (d, d) is scratch (no allocation)."""
     d = jac.shape[0]
     for i in range(d):
@@ -163,10 +163,10 @@ def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np
         for j in range(d):
             jac[i, j] = 1.0 if i == j else 0.0
     for k in range(theta.shape[0]):
-        _swirl(y, k, centers, theta, inv_2rho2, gen, z, kz, rot, step)
-        _left_multiply(step, jac, tmp)
-        _residual(y, k, w1b, w2, inv_r2, th, h, step)
-        _left_multiply(step, jac, tmp)
+        swirl(y, k, centers, theta, inv_2rho2, gen, z, kz, rot, step)
+        left_multiply(step, jac, tmp)
+        residual_block(y, k, w1b, w2, inv_r2, th, h, step)
+        left_multiply(step, jac, tmp)
     for i in range(d):
         s = 0.0
         for j in range(d):

@@ -249,10 +249,16 @@ class BoundedFlow(nn.Module):
         th = p["theta"][k]
         return (th * e).sum(1), -(th / rho2 * e).sum(1)
 
-    def forward_with_jacobian(self, x: torch.Tensor, jacobian: bool = True
+    def forward_with_jacobian(self, x: torch.Tensor, jacobian: bool = True,
+                              params: dict[str, torch.Tensor] | None = None
                               ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """y = phi(x), shape (B, d), and J_phi(x), shape (B, d, d) (None unless ``jacobian``)."""
-        p = self.scaled()
+        """y = phi(x), shape (B, d), and J_phi(x), shape (B, d, d) (None unless ``jacobian``).
+
+        ``params`` : the effective parameters of ``scaled`` when the caller holds them already (a
+        fitted field keeps them, so that its forward pass needs no eigen-decomposition and exports
+        to ONNX); by default ``scaled()``.
+        """
+        p = self.scaled() if params is None else params
         eye = torch.eye(self.dim, dtype=x.dtype)
         jac = eye.expand(x.shape[0], -1, -1) if jacobian else None
         for k in range(self.n_pairs):
@@ -274,6 +280,36 @@ class BoundedFlow(nn.Module):
                 jac = (eye + jg) @ jac
             x = x + env[:, None] * h
         return x, jac
+
+    def forward_with_tangent(self, x: torch.Tensor, v: torch.Tensor,
+                             params: dict[str, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """y = phi(x) and the Jacobian-vector product J_phi(x) v, both shape (B, d), in forward mode:
+        layer by layer, without forming J_phi (so without the (B, d, H) products of
+        ``forward_with_jacobian``):
+
+        - swirl, Eq. (F1): J u = R (u + q Kz (z'u)), R w = w + sin(ang) K w + (1 - cos(ang)) K (K w);
+        - residual block, Eq. (F3): J u = u + e(x) (W2 ((1 - th^2) * W1 u) - h (x'u) / R^2).
+
+        x, v : tensors, shape (B, d); ``params`` as in ``forward_with_jacobian``.
+        """
+        p = self.scaled() if params is None else params
+        inv_r2 = 1.0 / self.window ** 2
+        for k in range(self.n_pairs):
+            z = x - self.center[k]
+            ang, q = self._angle(p, k, (z * z).sum(1))
+            cs, sn = torch.cos(ang)[:, None], torch.sin(ang)[:, None]
+            kz = self._generator(p, k, z)
+            u = v + (q * (z * v).sum(1))[:, None] * kz
+            ku = self._generator(p, k, u)
+            x = self.center[k] + z + sn * kz + (1 - cs) * self._generator(p, k, kz)
+            v = u + sn * ku + (1 - cs) * self._generator(p, k, ku)
+            env = torch.exp(-0.5 * (x * x).sum(1) * inv_r2)[:, None]
+            th = torch.tanh(torch.addmm(self.b1[k], x, self.w1[k].T))
+            w2 = p["w2"][k]
+            h = th @ w2.T
+            dh = ((1 - th * th) * (v @ self.w1[k].T)) @ w2.T - h * ((x * v).sum(1, keepdim=True) * inv_r2)
+            x, v = x + env * h, v + env * dh
+        return x, v
 
     def forward_with_inverse_jacobian(self, x: torch.Tensor
                                       ) -> tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:

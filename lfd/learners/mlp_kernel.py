@@ -22,7 +22,7 @@ ACTIVATIONS: dict[str, int] = {"tanh": 0, "relu": 1, "softplus": 2, "elu": 3, "s
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
-def _activate(z: float, act: int) -> float:  # pragma: no cover - compiled
+def activate(z: float, act: int) -> float:  # pragma: no cover - compiled
     """The activation ``act`` (``ACTIVATIONS``) of z (softplus: beta 1, threshold 20, as torch)."""
     if act == 0:
         return math.tanh(z)
@@ -57,7 +57,7 @@ def mlp(x: np.ndarray, prm: np.ndarray, widths: np.ndarray, act: int,
         y = np.dot(prm[o:b].reshape((n_out, n_in)), z)   # BLAS, as numpy's ndarray.dot
         for r in range(n_out):
             acc = y[r] + prm[b + r]
-            y[r] = acc if last else _activate(acc, act)
+            y[r] = acc if last else activate(acc, act)
         if last:
             out[:] = y
         o = b + n_out

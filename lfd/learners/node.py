@@ -47,8 +47,9 @@ from lfd.errors import ConfigError
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
 from lfd.learners.node_kernel import RK4Segments, ScaledMLP, tanh_as_sigmoid
+from lfd.learners.optim import Adam
 from lfd.threads import torch_threads
-from lfd.validate import check_bools, check_ints, check_positive, is_int, is_real
+from lfd.validate import check_bools, check_ints, check_numbers, check_positive, is_int
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "tanh": nn.Tanh, "relu": nn.ReLU, "softplus": nn.Softplus, "elu": nn.ELU, "silu": nn.SiLU,
@@ -111,10 +112,8 @@ class NodeConfig:
             raise ValueError(f"lr must be at most {MAX_LR:g}, got {self.lr!r}")
         if self.lr_final > self.lr:
             raise ValueError(f"lr_final ({self.lr_final}) must not exceed lr ({self.lr})")
-        if not is_real(self.weight_decay) or self.weight_decay < 0:
-            raise ValueError(f"weight_decay must be a number >= 0, got {self.weight_decay!r}")
-        if not is_real(self.curriculum) or not 0.0 <= self.curriculum <= 1.0:
-            raise ValueError(f"curriculum must be a number in [0, 1], got {self.curriculum!r}")
+        check_numbers(self, ("weight_decay",), "a number >= 0", lambda v: v >= 0)
+        check_numbers(self, ("curriculum",), "a number in [0, 1]", lambda v: 0.0 <= v <= 1.0)
         check_ints(self, (("iterations", 1, None), ("substeps", 1, None), ("seg", 2, None), ("seg_start", 2, None),
                           ("batch", 0, None), ("samples", 0, None)))
         if self.seg_start > self.seg:
@@ -264,9 +263,8 @@ class _Shooting:
         self.kwargs = solver_options(config)
         if config.adjoint:
             self.kwargs["adjoint_params"] = tuple(module.parameters())
-        self.opt = torch.optim.Adam(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-        self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, T_max=config.iterations,
-                                                                eta_min=config.lr_final)
+        self.opt = Adam(module.parameters(), lr=config.lr, lr_final=config.lr_final, t_max=config.iterations,
+                        weight_decay=config.weight_decay)
 
     def loss(self, w: torch.Tensor, hb: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
         """The loss L of the module docstring (the paper's Eq. (4), by multiple shooting) on
@@ -284,11 +282,10 @@ class _Shooting:
         return torch.mean((pred[1:] - w[1:]) ** 2)
 
     def step(self, loss: torch.Tensor) -> None:
-        """One Adam step on ``loss``, then one step of the cosine schedule."""
-        self.opt.zero_grad(set_to_none=True)
+        """One Adam step on ``loss``, then one step of the cosine schedule (``lfd.learners.optim``)."""
+        self.opt.zero_grad()
         loss.backward()
         self.opt.step()
-        self.sched.step()
 
 
 def _batch(segments: Segments, config: NodeConfig, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
@@ -363,15 +360,8 @@ class NodeField(VelocityField):
     """A NODE velocity field with a pure-numpy single-point path for control loops."""
 
     def _numpy_layers(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """(W_i, b_i) in float64 with g(0) folded into the output bias: f(x_n) = g'(x_n)."""
-        module: NodeMLP = self.module  # type: ignore[assignment]
-        layers = [(m.weight.detach().numpy().copy(), m.bias.detach().numpy().copy())
-                  for m in module.linears()]
-        if module.goal_equilibrium:
-            w_out, b_out = layers[-1]
-            g0 = _numpy_mlp(layers, module.activation)(np.zeros(self.dim))
-            layers[-1] = (w_out, b_out - g0)
-        return layers
+        """(W_i, b_i) in float64 with g(0) folded into the output bias (``numpy_layers``)."""
+        return numpy_layers(cast(NodeMLP, self.module))
 
     def jacobian_lipschitz_bound(self) -> float:
         """An upper bound of Lip(J_f) = sup |D^2 f| on all of R^d, user units (1/(s unit)).
@@ -425,6 +415,18 @@ class NodeField(VelocityField):
         layers[0] = (w1 / s, b1 - w1.dot(goal) / s)
         layers[-1] = (wl * s, bl * s)
         return mlp_point_fn(layers, cast(NodeMLP, self.module).activation)
+
+
+def numpy_layers(module: NodeMLP) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The layers (W_i (out, in), b_i (out,)) of ``module`` in float64, input first, with g(0)
+    folded into the output bias when ``goal_equilibrium``: f(x_n) = W_L z_{L-1} + b_L - g(0)."""
+    layers = [(m.weight.detach().double().numpy().copy(), m.bias.detach().double().numpy().copy())
+              for m in module.linears()]
+    if module.goal_equilibrium:
+        w_out, b_out = layers[-1]
+        g0 = _numpy_mlp(layers, module.activation)(np.zeros(layers[0][0].shape[1]))
+        layers[-1] = (w_out, b_out - g0)
+    return layers
 
 
 def _numpy_mlp(layers: list[tuple[np.ndarray, np.ndarray]],

@@ -188,7 +188,7 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, runner: 
           bar: Any) -> tuple[float, float, int]:
     """The K control steps of ``execute``, written into ``rec``. Returns (wall s, CPU s, video frames written)."""
     step, ctl = task.step, task.controller
-    begin, field_point, command, end = step.begin, step.field_point, step.command, step.end
+    begin, command, end = step.begin_at_point, step.command, step.end
     K, dt, dadr = task.n_steps, task.control_dt, task.robot.mj_dof_adr
     fsteps, Q, Qd, P, V, F, FQ, steps = rec.frame_steps, rec.q, rec.qdot, rec.ee, rec.command, rec.force, \
         rec.frame_qpos, rec.step_s
@@ -209,7 +209,8 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, runner: 
     start = clock()
     for k in range(K):
         t0 = clock()
-        P[k] = begin()
+        x = begin()
+        P[k] = step.p
         Q[k] = step.q
         Qd[k] = qvel[dadr] if qvel_arm is None else qvel_arm
         if k == next_frame:
@@ -218,7 +219,7 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, runner: 
             next_frame = int(fsteps[j]) if j < len(fsteps) else -1
         if ROT is not None:
             ROT[k] = ctl.measured_rotation()
-        v = V[k] = runner(field_point(), k * dt)
+        v = V[k] = runner(x, k * dt)
         command(v)
         if guard is not None and CLR is not None and GA is not None:
             CLR[k] = guard.min_distance

@@ -118,6 +118,17 @@ class ControlStep:
         x = self._x if self._pose else self._to_task(self.p)
         return x - self._shift if self._shifted else x
 
+    def begin_at_point(self) -> np.ndarray:
+        """Steps 1 and 2 in one call (the loop's): ``begin``, then the field's point x - dg, shape (d,)."""
+        if self._split:
+            _step1(self.model, self.data)
+        q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
+        p = self.p = self._measure(q)
+        if self.k == self._h0:
+            self._q_hold = q.copy()
+        x = self._x = self._to_task(p)
+        return x - self._shift if self._shifted else x
+
     def command(self, v: np.ndarray) -> None:
         """Step 3: write the actuator commands for the task velocity v, shape (d,), task units/s, at
         the state measured by ``begin``, then this step's perturbations."""

@@ -172,7 +172,7 @@ def test_divergence_raises_simulation_error(planar, demos):
 
 
 def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypatch):
-    import sim.pipeline
+    import sim.job
     from sim import cli
 
     model = tmp_path / "sink.pt"
@@ -180,7 +180,7 @@ def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypa
     sink_field(demos).save(model)
     monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
     diverging = lambda name, seed=0, pose=False: (sim.JointVelocityNoise(std_rad_s=1e12),)  # noqa: E731
-    monkeypatch.setattr(sim.pipeline, "scenario", diverging)
+    monkeypatch.setattr(sim.job, "scenario", diverging)
     monkeypatch.setattr(sim_experiment, "scenario", diverging)
     out = tmp_path / "out"
     rc = cli.main(["--robot", "planar", "--model", str(model), "--perturb", "none", "--out", str(out), "--quiet"])

@@ -5,6 +5,7 @@
 table (each headline metric in both splits and their ratio, ``lfd.bench.summary.compare_splits``),
 the held-out summary; the suite's own sections; a reading generated from the numbers; per learner
 a table with a row per unit, **Mean** and **Median** rows, in each split; and the suite's figures.
+Beside it, its results page (``lfd.bench.report_page``): ``<report stem>.html``.
 """
 
 from __future__ import annotations
@@ -16,9 +17,11 @@ from typing import Any
 
 import numpy as np
 
+from lfd.bench.report_page import DISTRIBUTIONS, bench_page
 from lfd.bench.suite import HELD_OUT, IN_SAMPLE, Column, Suite
 from lfd.bench.summary import COMPARISON, rows_by, summarize
 from lfd.io import atomic_write
+from lfd.pages import versions, write_page
 
 Arrays = Callable[[dict[str, Any]], dict[str, np.ndarray]]
 
@@ -160,9 +163,18 @@ def _reading(suite: Suite, summary: dict[str, Any], rows: dict[str, Any], run: d
     return "\n\n".join(parts)
 
 
+def page_path(report: str | Path) -> Path:
+    """The results page of the report at ``report``: ``<stem>.html`` beside it (``<stem>_page.html``
+    for a report named ``.html``)."""
+    report = Path(report)
+    return report.with_name(f"{report.stem}_page.html" if report.suffix == ".html" else f"{report.stem}.html")
+
+
 def write_report(path: str | Path, suite: Suite, records: list[dict[str, Any]], learners: list[str],
-                 units: list[str], run: dict[str, Any], arrays: Arrays, notes: str | None = None) -> list[Path]:
-    """Write the markdown report and its figures (module docstring). Returns the figure paths."""
+                 units: list[str], run: dict[str, Any], arrays: Arrays, notes: str | None = None,
+                 json_path: str | Path | None = None) -> list[Path]:
+    """Write the markdown report, its figures and its results page (``page_path``; module
+    docstring); ``json_path`` is the results JSON the page links to. Returns the figure paths."""
     path = Path(path)
     summary = summarize(suite, records, learners)
     rows = rows_by(suite, records, learners)
@@ -204,6 +216,8 @@ def write_report(path: str | Path, suite: Suite, records: list[dict[str, Any]], 
         md += ["## Figures", "", *_images(figures[""], path)]
     text = "\n".join(md)
     atomic_write(path, lambda f: f.write(text.encode()))
+    write_page(page_path(path), bench_page(suite, summary, rows, units, run, figures, path,
+                                           None if json_path is None else Path(json_path), versions(DISTRIBUTIONS)))
     return [p for shown in figures.values() for _, p in shown]
 
 

@@ -165,13 +165,14 @@ def run(args: argparse.Namespace) -> int:
         return _run_report(args)
     from lfd.bench import get_suite
     from lfd.bench.protocol import stable_hash
-    from lfd.bench.report import write_report
+    from lfd.bench.report import page_path, write_report
     from lfd.bench.runner import load_arrays, run_cells
     from lfd.bench.suite import resolve_splits
     from lfd.bench.summary import summarize
     from lfd.io import write_json
 
     address = _check_run(args)
+    check_output(str(page_path(args.report)), "--report's page", {"--json file": args.json, "--notes file": args.notes})
     cls = get_suite(args.suite)
     protocol = cls.protocol_type(**{k.removeprefix("protocol_"): v for k, v in vars(args).items()
                                     if k.startswith("protocol_") and v is not None})
@@ -197,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
                        executor=args.executor, address=address, desc=suite.name)
     run_info = _run_info(args, _command(args, suite.unit), result, time.perf_counter() - t0, load_start, cache)
     figures = write_report(args.report, suite, result.records, learners, units, run_info,
-                           lambda r: load_arrays(cache, suite.record_stem(r)), notes)
+                           lambda r: load_arrays(cache, suite.record_stem(r)), notes, json_path)
     unit = suite.unit
     write_json(json_path, {
         "suite": suite.name, "protocol": protocol.to_dict(), "protocol_hash": stable_hash(protocol.to_dict()),
@@ -206,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
         "results": result.records,
     })
     print(f"{len(result.computed)} cell(s) computed, {len(result.cached)} from {cache}, in {run_info['wall_s']:.1f} s")
-    shown = [str(json_path), args.report, *(str(f) for f in figures[:4])]
+    shown = [str(json_path), args.report, str(page_path(args.report)), *(str(f) for f in figures[:4])]
     more = f" and {len(figures) - 4} more figures" if len(figures) > 4 else ""
     print(f"wrote {', '.join(shown[:-1])} and {shown[-1]}{more}")
     return 0

@@ -11,7 +11,8 @@ away from the demo's start, along each direction; ``goal``, the goal moves ``--g
 Each run is written as ``OUT/runs/<name>.json`` (``lfd.io.write_json``) with a ``key`` hash of
 everything that determines it; a later sweep skips a run whose record exists with that key, so an
 interrupted sweep resumes. The fields are trained (or read from ``lfd.cache``) here, before any
-worker starts. Then ``OUT/summary.json`` (``summarize``), ``OUT/heatmap.png`` and ``OUT/basin.png``.
+worker starts. Then ``OUT/heatmap.png``, ``OUT/basin.png``, the results page ``OUT/index.html``
+(``sim.studies.sweep_page``) and last ``OUT/summary.json`` (``summarize``).
 A run succeeds when it ends within ``--goal-tol`` m of its (shifted) goal without leaving the joint
 limits; a diverged simulation is a failed run, recorded with its error.
 
@@ -50,10 +51,13 @@ from lfd.errors import ConfigError, LfdError
 from lfd.interrupts import install_signal_handlers, restore_signal_handlers
 from lfd.io import write_json
 from lfd.learners import LEARNERS, get_learner
+from lfd.pages import versions, write_page
 from robots import RobotError, load_robot
 from sim.errors import SimError, SimulationError
+from sim.job_page import DISTRIBUTIONS
 from sim.parsing import OneLineParser, fail, floats, names
 from sim.studies.sweep_figures import basin, heatmap
+from sim.studies.sweep_page import sweep_page
 
 __all__ = ["KINDS", "RunSpec", "direction", "grid", "lost_record", "main", "read_record", "run_one", "summarize",
            "sweep"]
@@ -271,7 +275,8 @@ def _median(v: list[float]) -> float | None:
 def parse(argv: list[str] | None) -> argparse.Namespace:
     """The sweep's options (``--help``)."""
     ap = OneLineParser(prog=PROG, description=(__doc__ or "").split("\n\n")[0])
-    ap.add_argument("--out", required=True, help="output directory (runs/, summary.json, heatmap.png, basin.png)")
+    ap.add_argument("--out", required=True,
+                    help="output directory (runs/, summary.json, heatmap.png, basin.png, index.html)")
     ap.add_argument("--robots", default="panda", help="comma-separated robot names (default panda)")
     ap.add_argument("--learners", default="node,contraction", help="comma-separated learners")
     ap.add_argument("--demos", default="spiral", help="demo spec (default spiral)")
@@ -386,14 +391,18 @@ def _main(argv: list[str] | None) -> int:
             return 0
         records, info = sweep(specs, out, args.workers, args.executor, args.address, args.fresh, progress)
         figures = [p for p in (heatmap(records, out / "heatmap.png"), basin(records, out / "basin.png")) if p]
-        write_json(out / "summary.json", {"runs": len(records), "run": {**info, "load": os.getloadavg()},
-                                          "summary": summarize(records)})
+        summary = {"runs": len(records), "run": {**info, "load": os.getloadavg()}, "summary": summarize(records),
+                   "command": [PROG, *(sys.argv[1:] if argv is None else argv)],
+                   "versions": versions(DISTRIBUTIONS), "page": str(out / "index.html")}
+        write_page(out / "index.html", sweep_page(out, summary, records, figures,
+                                                  [out / "runs" / f"{r['name']}.json" for r in records]))
+        write_json(out / "summary.json", summary)   # last: a sweep with its summary is complete
         ok = sum(r["success"] for r in records)
         rate = f", {info['runs_per_s']:.2f} runs/s" if info["runs_per_s"] else ""
         where = f" on {len(info['nodes'])} node(s)" if args.executor == "ray" and info["nodes"] else ""
         print(f"{info['computed']} run(s) computed, {info['cached']} from {out / 'runs'}, in {info['wall_s']:.1f} s"
               f"{rate}{where}; {ok}/{len(records)} succeeded")
-        print(f"wrote {out / 'summary.json'}" + "".join(f", {p}" for p in figures))
+        print(f"wrote {out / 'summary.json'}" + "".join(f", {p}" for p in figures) + f", {out / 'index.html'}")
         return 0
     except (LfdError, SimError, RobotError, OSError) as e:
         return fail(PROG, str(e) or type(e).__name__)

@@ -11,7 +11,9 @@ metric. ``certified`` is claimed only where it is proven: analytic bounds that m
 on all of R^d, confirmed by the grid; or a bound between the grid points (``jacobian_lipschitz_bound``)
 that closes the gaps ("not proven" where it is too loose, "not certified" where a grid point
 fails, a trajectory from the box diverges or anything is NaN or inf). A field with a phase is
-certified by its own stated property. The reasoning in full: docs/equations.md, Eqs. (K1)-(K2).
+certified by its own stated property. Whatever the check, a field whose autonomous view has a
+spurious attractor, a closed orbit or starts that escape the box (``lfd.equilibria``) is "not
+certified". The reasoning in full: docs/equations.md, Eqs. (K1)-(K2) and (E1)-(E4).
 
 References
 ----------
@@ -32,6 +34,7 @@ import numpy as np
 import torch
 from torch.func import jvp
 
+from lfd.equilibria import EquilibriumReport, find_equilibria
 from lfd.errors import ConfigError
 from lfd.field import FieldKind, StateSpace, VelocityField, by_kind
 from lfd.pose_contraction import PAIRS, check_pose_contraction
@@ -76,6 +79,8 @@ class Certificate:
     n_starts, n_left_box : starts on the box followed, and how many left it
     n_points, per_axis : grid size; n_invalid : points where M, Q or g was not finite, or M not
         numerically positive definite
+    equilibria : ``lfd.equilibria.find_equilibria`` on the box (None when not searched); a spurious
+        attractor, a closed orbit or an escaping start there makes the verdict "not certified"
     """
 
     learner: str
@@ -110,9 +115,12 @@ class Certificate:
     checked_box: list[list[float]]
     elapsed_s: float
     pose: dict[str, Any] | None = None
+    equilibria: EquilibriumReport | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        out = asdict(self)
+        out["equilibria"] = None if self.equilibria is None else self.equilibria.to_dict()
+        return out
 
     def summary(self) -> str:
         """Human-readable lines for the command line."""
@@ -148,6 +156,8 @@ class Certificate:
                          f"{state} (worst ratio {p['worst_ratio']:.3g}, to the goal {p['goal_worst_ratio']:.3g}); "
                          f"slowest geodesic decay {p['geodesic_decay_rate']:.3g}/s; pairs across the cut locus "
                          f"separate up to {p['cut_locus_growth']:.3g}x before converging")
+        if self.equilibria is not None:
+            lines.extend("  " + line for line in self.equilibria.summary().splitlines())
         return "\n".join(lines)
 
 
@@ -277,15 +287,19 @@ def escaping_starts(field: VelocityField, lo: np.ndarray, hi: np.ndarray, rate: 
 
 def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray | None = None,
             samples: int = DEFAULT_SAMPLES, rate: float | None = None,
-            tolerance: float = DEFAULT_TOLERANCE, pose_pairs: int | None = None) -> Certificate:
+            tolerance: float = DEFAULT_TOLERANCE, pose_pairs: int | None = None, equilibria: bool = True,
+            duration: float | None = None) -> Certificate:
     """Certify Eq. (C1) for ``field`` (see the module docstring for what each verdict means).
 
     lo, hi : arrays, shape (d,), the box in user units (default: the training demos' box grown
     by 50%, ``default_box``); samples : at least this many grid points (and at least
     MIN_PER_AXIS per axis); rate : 1/s (default: the field's own, or ``IDENTITY_RATE``);
     tolerance : extra absolute slack, 1/s, added to the round-off slack of Eq. (K2); pose_pairs : a pose
-    field's pairs of each kind for ``lfd.pose_contraction.check_pose_contraction`` (default its ``PAIRS``).
-    Raises ConfigError for a missing or empty box, a bad rate, sample count or tolerance.
+    field's pairs of each kind for ``lfd.pose_contraction.check_pose_contraction`` (default its ``PAIRS``);
+    equilibria : search the box for spurious attractors, closed orbits and escapes (``lfd.equilibria``,
+    the field's autonomous view), any of which makes the verdict "not certified"; duration : the demos'
+    duration, s, that sets the search's horizon (default ``find_equilibria``'s).
+    Raises ConfigError for a missing or empty box, a bad rate, sample count, tolerance or duration.
     """
     if lo is None or hi is None:
         box = default_box(field)
@@ -310,16 +324,27 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
     if not (math.isfinite(tolerance) and tolerance >= 0):
         raise ConfigError(f"tolerance must be a non-negative number, got {tolerance!r}")
 
+    if duration is not None and not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"duration must be a positive number of seconds, got {duration!r}")
+
     with warnings.catch_warnings():     # torch.func's first use warns that torch.jit.script is deprecated
         warnings.simplefilter("ignore", DeprecationWarning)
         cert = by_kind(field, _CERTIFIERS)(field, lo, hi, samples, float(rate), tolerance)
-    if field.space is StateSpace.POSITION:
+    if field.space is StateSpace.POSE:
+        pose = check_pose_contraction(field, PAIRS if pose_pairs is None else int(pose_pairs))
+        cert = replace(cert, pose=pose)
+        if pose["checked"] and not pose["holds"] and cert.certified:
+            cert = replace(cert, verdict="not certified", certified=False,
+                           proof="a sampled pair of poses breaks the pose-distance bound (a counterexample)")
+    if not equilibria:
         return cert
-    pose = check_pose_contraction(field, PAIRS if pose_pairs is None else int(pose_pairs))
-    if pose["checked"] and not pose["holds"] and cert.certified:
-        return replace(cert, pose=pose, verdict="not certified", certified=False,
-                       proof="a sampled pair of poses breaks the pose-distance bound (a counterexample)")
-    return replace(cert, pose=pose)
+    with torch_threads(1):
+        found = find_equilibria(field, lo, hi, duration)
+    if found.clean or cert.verdict == "not certified":
+        return replace(cert, equilibria=found)
+    return replace(cert, equilibria=found, verdict="not certified", certified=False,
+                   proof=f"{', '.join(found.failures())} besides the goal: the goal does not attract every start "
+                         f"(a counterexample)")
 
 
 def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int, rate: float,

@@ -3,8 +3,10 @@ staged, and moved into place together (``sim.outputs.OutputSet``).
 
 Per run ``<learner>_<scenario>``: the video (``.mp4``, unless videos are off), the time series
 (``.npz``, ``sim.timeseries``) and its figure (``.png``, ``sim.plots.run_figure``). Per job:
-``paths.png`` (the tool paths over the demos), ``loss_<learner>.png`` (the training loss), the
-side-by-side and grid videos when asked for, and ``metrics.json`` last, listing every file.
+``paths.png`` (the tool paths over the demos), ``loss_<learner>.png`` (the training loss, for a
+learner with a loss curve), the side-by-side and grid videos when asked for, ``metrics.json``,
+listing every file, and last the results page ``index.html`` (``sim.job_page``) in the output
+folder, made from metrics.json's content.
 """
 
 from __future__ import annotations
@@ -22,10 +24,12 @@ import numpy as np
 from lfd.errors import ConfigError
 from lfd.field import Field
 from lfd.io import atomic_write, same_file, write_json
+from lfd.pages import versions, write_page
 from sim import timeseries
 from sim.camera import CameraSpec
 from sim.experiment import Experiment, RunResult
 from sim.job import ArmJob
+from sim.job_page import DISTRIBUTIONS, job_page
 from sim.outputs import OutputSet, fresh_dir
 
 __all__ = ["JobFiles", "run_entry"]
@@ -77,6 +81,8 @@ class JobFiles:
             if same_file(path, self.json_path):
                 raise ConfigError(f"{path}: an output and --json would be the same file")
         self.outputs.plan(self.plan.every())
+        self.page_path = self.out / "index.html"
+        self.outputs.plan([self.page_path], "the results page")
 
     @property
     def n_videos(self) -> int:
@@ -191,15 +197,22 @@ class JobFiles:
             **extra,
             "timing_s": {"simulation": t_sim, "video": t_video, "series_and_plots": t_files},
         }
+        figures = {name: str(path) for name, path in plan.extra_plots.items() if staged(path).exists()}
+        report.update(figures=figures, versions=versions(DISTRIBUTIONS), page=str(self.page_path))
         write_json(staged(self.json_path), report)
+        write_page(staged(self.page_path), job_page(report, self.json_path, self._size),
+                   where=self.page_path)
         return report
 
-    def _figures(self, exp: Experiment, results: list[RunResult], fields: dict[str, Field]) -> None:
-        """paths.png and each learner's loss_<learner>.png."""
-        from matplotlib.figure import Figure
+    def _size(self, path: Path) -> int | None:
+        """The size of the staged file of ``path`` in bytes (None if it was not written)."""
+        staged = self.outputs.staged(path)
+        return staged.stat().st_size if staged.exists() else None
 
-        from lfd.plotting import draw_loss
-        from sim.plots import paths_figure
+    def _figures(self, exp: Experiment, results: list[RunResult], fields: dict[str, Field]) -> None:
+        """paths.png and the loss_<learner>.png of each learner that has a loss curve (none for one
+        without: metrics.json's ``figures`` lists what was written)."""
+        from sim.plots import loss_figure, paths_figure
 
         plan, staged = self.plan, self.outputs.staged
         pd = exp.placement.position_dim   # a pose task's figure shows its positions
@@ -209,7 +222,6 @@ class JobFiles:
              paths_figure(exp.task_demos.x[..., :pd], label_runs, goal, f"tool paths over the demos {exp.demos.name}"))
         for learner in {r.learner for r in results}:
             path = plan.extra_plots.get(f"loss_{learner}")
-            if path is not None and fields[learner].history.get("loss"):
-                fig = Figure(figsize=(7, 4.5), layout="constrained")
-                draw_loss(fig.add_subplot(), fields[learner].history, fields[learner].config)
+            fig = None if path is None else loss_figure(fields[learner].history, fields[learner].config)
+            if path is not None and fig is not None:
                 _png(staged(path), fig)

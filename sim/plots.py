@@ -5,6 +5,7 @@
   each joint's range (0 = lower limit, 1 = upper limit).
 * ``paths_figure``: every run's tool path over the demonstrations in task space (2-D: the
   plane; 3-D: a 3-D axes).
+* ``loss_figure``: a learner's training loss, or None when its record holds no curve to draw.
 
 Figures are ``matplotlib.figure.Figure`` without pyplot (no global backend).
 """
@@ -16,6 +17,8 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+
+from lfd.plotting import draw_loss, has_loss_curve
 
 
 def _shade(ax: Any, window: np.ndarray, label: str) -> None:
@@ -72,4 +75,15 @@ def paths_figure(demos_x: np.ndarray, runs: Sequence[tuple[str, np.ndarray]], go
     ax.set_ylabel("x2")
     ax.set_title(title or "tool paths in task space", fontsize=10)
     ax.legend(fontsize=7, loc="best")
+    return fig
+
+
+def loss_figure(history: dict[str, Any], config: dict[str, Any] | None) -> Figure | None:
+    """The training loss of ``history`` (``lfd.plotting.draw_loss``, a NODE's curriculum marked from its
+    ``config``), or None when there is no loss curve (``lfd.plotting.has_loss_curve``: the tracking
+    learner's fit records one value)."""
+    if not has_loss_curve(history):
+        return None
+    fig = Figure(figsize=(7, 4.5), layout="constrained")
+    draw_loss(fig.add_subplot(), history, config)
     return fig

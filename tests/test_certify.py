@@ -3,8 +3,9 @@
 Known answers first: a linear field f(x) = A (x - g) in the identity metric has
 g(x) = max eig(A + A') everywhere; a contraction model in its own metric has
 g(x) = max eig(A + A') of its latent matrix (Eq. (C1) holds with equality in J_phi' J_phi).
-Then the verdicts: NaN or inf anywhere, a marginal or expanding field at a tiny rate, and a NODE
-whose grid passes but whose bound between the grid points does not, are never "certified".
+Then the verdicts: NaN or inf anywhere, a marginal or expanding field at a tiny rate, a NODE
+whose grid passes but whose bound between the grid points does not, and a field with a spurious
+attractor (``lfd.equilibria``), are never "certified".
 """
 
 from __future__ import annotations
@@ -15,10 +16,13 @@ import math
 import numpy as np
 import pytest
 import torch
+from equilibrium_fields import bistable_field, bistable_node
 
 import lfd
+import lfd.certify
 from lfd.certify import IDENTITY_RATE, MIN_PER_AXIS, certify, default_box, grid
 from lfd.cli import main
+from lfd.equilibria import find_equilibria
 from lfd.errors import ConfigError
 from lfd.learners.contraction import ContractionField
 
@@ -100,7 +104,7 @@ def test_trained_contraction_models_are_certified_with_their_analytic_constants(
 
 def test_certificate_fails_when_asked_for_more_than_was_built(models: dict[str, str]) -> None:
     field = lfd.load(models["weak"])
-    c = certify(field, samples=SAMPLES, rate=5.0)
+    c = certify(field, samples=SAMPLES, rate=5.0, equilibria=False)
     assert c.verdict == "not certified" and "counterexample" in c.proof
 
 
@@ -117,7 +121,7 @@ def test_a_rotation_at_a_tiny_rate_is_not_certified(make_linear_field) -> None:
 def test_an_expanding_field_fails_in_its_learned_metric(models: dict[str, str]) -> None:
     field = lfd.load(models["weak"])
     field.module.rate = -0.5                          # A = +0.5 I + S - P: no longer contracting
-    c = certify(field, samples=SAMPLES)
+    c = certify(field, samples=SAMPLES, equilibria=False)
     assert not c.certified and c.worst == pytest.approx(latent_worst(field), abs=1e-8) and c.worst > -0.4
 
 
@@ -187,8 +191,9 @@ def test_cli_exit_codes_and_json(models: dict[str, str], tmp_path, capsys) -> No
     assert report["certified"] is True and report["learner"] == "contraction" and report["rate"] == 0.2
     assert report["worst"] <= report["bound"] + report["slack"] and len(report["argmax"]) == 2
     assert report["overshoot"] <= 10.0 * (1 + 1e-9)
+    assert report["equilibria"]["clean"] is True and report["equilibria"]["equilibria"] == []
     assert main(["certify", models["node"], "--demos", "spiral", "--samples", "400"]) == 1
-    assert main(["certify", models["node"], "--samples", "400"]) == 1   # box from field.demo_box
+    assert main(["certify", models["node"], "--samples", "400", "--no-equilibria"]) == 1   # box: field.demo_box
     assert "NOT CERTIFIED" in capsys.readouterr().out
 
 
@@ -230,14 +235,14 @@ def test_a_metric_that_is_not_positive_definite_is_not_certified(models: dict[st
         return torch.where((xn[:, 1] > 0.9)[:, None, None], torch.nan, m)
 
     monkeypatch.setattr(field, "metric_normalized_torch", broken)
-    c = certify(field, samples=SAMPLES)
+    c = certify(field, samples=SAMPLES, equilibria=False)
     assert not c.certified and c.worst == np.inf and 0 < c.n_invalid < c.n_points
     assert np.isfinite(c.sampled_metric_min_eig) and np.isfinite(c.sampled_metric_max_eig)
 
 
 def test_a_3d_contraction_model_is_certified() -> None:
     field = lfd.train("contraction", lfd.spiral3d(), seed=0, progress=False, iterations=20, rate=1.0)
-    c = certify(field, samples=1000)
+    c = certify(field, samples=1000, equilibria=False)
     assert c.certified and len(c.argmax) == 3 and c.n_points == 10 ** 3
     assert c.worst == pytest.approx(latent_worst(field), rel=1e-6)
 
@@ -261,3 +266,39 @@ def test_cli_reports_a_nan_model_not_certified_with_exit_1(models: dict[str, str
     assert main(["certify", str(path), "--samples", "400"]) == 1
     assert "NOT CERTIFIED" in capsys.readouterr().out
     assert main(["eval", str(path), "--demos", "spiral"]) == 2
+
+
+# ---------------------------------------------------------------- equilibria and closed orbits
+
+def test_a_spurious_attractor_makes_a_certified_field_not_certified(models: dict[str, str],
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """Whatever the contraction check says, a spurious attractor in the box refuses the certificate."""
+    field = lfd.load(models["weak"])
+    clean = certify(field, samples=SAMPLES)
+    assert clean.certified and clean.equilibria is not None and clean.equilibria.clean
+    found = find_equilibria(bistable_field(), np.array([-3.0, -1.0]), np.array([1.0, 1.0]), duration=5.0)
+    monkeypatch.setattr(lfd.certify, "find_equilibria", lambda *args, **kwargs: found)
+    c = certify(field, samples=SAMPLES)
+    assert c.verdict == "not certified" and not c.certified and c.worst == clean.worst
+    assert c.proof.startswith("1 spurious attractor besides the goal")
+    assert "attractor at (-2, " in c.summary() and json.loads(json.dumps(c.to_dict()))["equilibria"]["clean"] is False
+
+
+def test_certify_reports_a_nodes_spurious_attractor(spiral: lfd.DemoSet, tmp_path, capsys) -> None:
+    field = bistable_node(spiral)
+    where = field.goal + field.norm.scale * np.array([-1.0, 0.0])
+    c = certify(field, *spiral.bounds(0.5), samples=SAMPLES, duration=5.0)
+    assert c.verdict == "not certified" and c.equilibria is not None
+    (sink,) = c.equilibria.spurious_attractors
+    np.testing.assert_allclose(sink.location, where, atol=1e-6)
+    path, out = tmp_path / "bistable.pt", tmp_path / "cert.json"
+    field.save(path)
+    assert main(["certify", str(path), "--demos", "spiral", "--samples", "400", "--json", str(out)]) == 1
+    text = capsys.readouterr().out
+    assert "NOT CERTIFIED" in text and "attractor at (" in text and "saddle at (" in text
+    report = json.loads(out.read_text())["equilibria"]
+    assert report["spurious_attractors"] == 1 and report["clean"] is False
+    assert report["method"]["duration_s"] == pytest.approx(5.0)
+    np.testing.assert_allclose(report["equilibria"][0]["location"], where, atol=1e-6)
+    assert main(["certify", str(path), "--samples", "400", "--no-equilibria", "--json", str(out)]) == 1
+    assert json.loads(out.read_text())["equilibria"] is None

@@ -2,8 +2,12 @@
 
 The box is --box, else the --demos box grown by 50%, else the training demos' box stored in the
 model, grown by 50%. A contraction model is checked in its learned metric with its own rate; any
-other model (a NODE) in the identity metric with --rate or 0.05/s. Prints the verdict and, with
---json, writes the certificate atomically. Exit code 0: certified; 1: not certified; 2: bad input.
+other model (a NODE) in the identity metric with --rate or 0.05/s. The box is also searched for
+equilibria and closed orbits besides the goal (``lfd.equilibria``; rollouts of 10x the --demos'
+duration): a spurious attractor, a closed orbit or a start that escapes makes it "not certified".
+With --goal the model is checked as run toward that goal (the default box moves with it).
+Prints the verdict, the equilibria and orbits and, with --json, writes the certificate atomically.
+Exit code 0: certified; 1: not certified; 2: bad input.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ def parse_box(text: str) -> tuple[Any, Any]:
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.commands import MODEL_HELP, source_constant
+    from lfd.commands import MODEL_HELP, add_goal, source_constant
 
     # read from lfd/certify.py without importing it (it imports torch; ``lfd --help`` stays fast)
     DEFAULT_SAMPLES, DEFAULT_TOLERANCE, IDENTITY_RATE = (  # noqa: N806
@@ -41,7 +45,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--box", type=parse_box, metavar="XMIN,XMAX,YMIN,YMAX[,ZMIN,ZMAX]",
                    help="box to check, user units; write --box=-1,1,-1,1 when it starts with a minus "
                         "(default: the demos' box grown by 50%%)")
-    p.add_argument("--demos", metavar="SPEC", help="take the box from these demos (grown by 50%%)")
+    p.add_argument("--demos", metavar="SPEC",
+                   help="take the box (grown by 50%%) and the duration of the search from these demos")
     p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
                    help=f"at least N grid points, at most {MAX_SAMPLES} (default {DEFAULT_SAMPLES})")
     p.add_argument("--rate", type=float, metavar="LAMBDA",
@@ -49,6 +54,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE, metavar="TOL",
                    help="relative round-off slack: certified if worst <= -2 rate + TOL max(1, 2 rate) "
                         f"(default {DEFAULT_TOLERANCE:g})")
+    p.add_argument("--no-equilibria", action="store_true",
+                   help="skip the search for spurious attractors, closed orbits and escaping starts")
+    add_goal(p)
     p.add_argument("--json", metavar="PATH", help="write the certificate to this JSON file")
     return p
 
@@ -65,18 +73,26 @@ def run(args: argparse.Namespace) -> int:
     from lfd.io import write_json
     from lfd.learners import load
 
-    if args.box is not None:
-        field = load(args.model, allow_nonfinite=True)
-        lo, hi = args.box
-    elif args.demos is not None:
+    duration = None
+    lo: Any = None
+    hi: Any = None
+    if args.demos is not None:
         from lfd.commands import model_and_demos
 
         field, demos = model_and_demos(args.model, args.demos, allow_nonfinite=True)
         lo, hi = demos.bounds(BOX_GROWTH)
+        duration = float((demos.t[:, -1] - demos.t[:, 0]).mean())
     else:
         field = load(args.model, allow_nonfinite=True)
-        lo = hi = None
-    cert = certify(field, lo, hi, samples=args.samples, rate=args.rate, tolerance=args.tolerance)
+    if args.goal is not None:   # the model run toward the goal; a box from --demos moves with it
+        moved = field.toward(args.goal)
+        if lo is not None:
+            lo, hi = lo + (moved.goal - field.goal), hi + (moved.goal - field.goal)
+        field = moved
+    if args.box is not None:
+        lo, hi = args.box
+    cert = certify(field, lo, hi, samples=args.samples, rate=args.rate, tolerance=args.tolerance,
+                   equilibria=not args.no_equilibria, duration=duration)
     print(cert.summary())
     if args.json:
         report = {"model": str(args.model), **cert.to_dict()}

@@ -1,4 +1,6 @@
-"""``lfd plot``: draw a model's field, demos, rollouts and loss curve into an image file."""
+"""``lfd plot``: draw a model's field, demos, rollouts and loss curve into an image file, with the field's
+spurious attractors and closed orbits (``lfd.equilibria``, in the demos' box grown by half) marked, and a
+pose model's orientations over time."""
 
 from __future__ import annotations
 
@@ -12,16 +14,19 @@ MAX_DPI = 1000  # the figure is about 12 x 5 inches: 1000 dpi is already 60 mega
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.commands import add_model_and_demos, seed
+    from lfd.commands import add_goal, add_model_and_demos, seed
 
     p = subparsers.add_parser("plot", help="plot a model's field, rollouts and loss",
                               description=__doc__.splitlines()[0])
     add_model_and_demos(p)
+    add_goal(p)
     p.add_argument("--out", required=True, metavar="PATH", help=f"image file ({', '.join(FORMATS)})")
     p.add_argument("--perturbed", type=int, default=8, metavar="N",
                    help="rollouts from N perturbed starts (default 8)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the perturbed starts (default 0)")
     p.add_argument("--dpi", type=int, default=120, help=f"resolution, 1 to {MAX_DPI} (default 120)")
+    p.add_argument("--no-equilibria", action="store_true",
+                   help="do not search for (nor mark) spurious attractors and closed orbits")
     p.add_argument("--obstacle", action="append", default=[], metavar="SPEC",
                    help="avoid an obstacle (repeatable, task units): sphere:x,y[,z],r | "
                         "box:x,y[,z],hx,hy[,hz] | capsule:x1,y1[,z1],x2,y2[,z2],r [;margin=M]")
@@ -34,6 +39,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     from lfd.commands import check_output, model_and_demos
     from lfd.errors import ConfigError
+    from lfd.interrupts import say
     from lfd.io import atomic_write
 
     out = Path(args.out)
@@ -48,10 +54,15 @@ def run(args: argparse.Namespace) -> int:
     obstacles = [parse_obstacle(text) for text in args.obstacle]
     shift = moving_goal.parse_goal_shift(args.goal_shift) if args.goal_shift else None
     path = moving_goal.load_goal_path(args.goal_path) if args.goal_path else None
+    from lfd.equilibria import find_equilibria
     from lfd.plotting import draw_obstacles, field_figure
 
     field: Any   # a VelocityField, then maybe wrapped (moving goal, obstacles) with the same interface
-    field, demos = model_and_demos(args.model, args.demos)
+    field, demos = model_and_demos(args.model, args.demos, goal=args.goal)
+    found = None
+    if not args.no_equilibria:      # the learned field's own, before any obstacle or moving goal
+        lo, hi = demos.bounds(grow=0.5)
+        found = find_equilibria(field, lo, hi, float((demos.t[:, -1] - demos.t[:, 0]).mean()))
     if shift is not None:
         t0, dx = shift
         field = moving_goal.shift_goal(field, t0, cast(Sequence[float], dx))   # shift_goal takes arrays too
@@ -59,9 +70,12 @@ def run(args: argparse.Namespace) -> int:
         field = moving_goal.follow_goal_path(field, *path)
     if obstacles:
         field = avoid(field, obstacles)
-    fig = field_figure(field, demos, n_perturbed=args.perturbed, seed=args.seed)
+    fig = field_figure(field, demos, n_perturbed=args.perturbed, seed=args.seed, equilibria=found)
     draw_obstacles(fig.axes[0], obstacles)
     fmt = out.suffix.lower().lstrip(".")
     atomic_write(out, lambda f: fig.savefig(f, format=fmt, dpi=args.dpi))
+    if found is not None and not found.clean:
+        say(f"lfd: note: in the demos' box grown by half: {'; '.join(found.failures())} (attractors and "
+            f"orbits marked; `lfd certify` lists them)")
     print(f"wrote {args.out}")
     return 0

@@ -196,6 +196,13 @@ def test_contraction_converges_from_every_start_and_fits_angle(quick: dict[str, 
         assert c["convergence"]["rate"] == 1.0, (shape, c["convergence"])
         assert c["integrators"] == {"reproduce": "dopri5", "rollouts": "dopri5", "grid": "dopri5"}
         assert c["convergence"]["spurious_grid"] == 0.0 and c["convergence"]["n_grid"] == 35 * 35
+        # the equilibria search (lfd.equilibria) finds nothing but the goal in a contracting field
+        assert c["equilibria"]["clean"] and c["equilibria"]["spurious_attractors"] == 0
+        assert c["equilibria"]["goal_fraction"] == 1.0
+    assert all(c["equilibria"] is None for c in quick["json"]["results"] if c["learner"] == "dmp")
+    s = quick["json"]["summary"]["contraction"]["in-sample"]["equilibria"]
+    assert s["units_clean"] == 3 and s["spurious_attractors"] == 0
+    assert "| 3 clean; 0 attractor(s), 0 orbit(s) |" in quick["md"]
     assert cells["Angle"]["metrics"]["dtw"] < ANGLE_DTW_CONTRACTION_MAX
     dmp = {c["shape"]: c for c in quick["json"]["results"] if c["learner"] == "dmp"}
     assert all(c["convergence"]["rate"] == 1.0 for c in dmp.values())

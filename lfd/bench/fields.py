@@ -27,7 +27,9 @@ import torch
 from lfd import evaluation, integrate
 from lfd.bench.model import Model, time_per_call
 from lfd.demos import DemoSet
+from lfd.equilibria import equilibria_summary
 from lfd.field import FieldKind, PhasedField, VelocityField, by_kind
+from lfd.threads import torch_threads
 
 #: history entries a record keeps
 HISTORY_KEYS = ("iterations", "best_loss", "interrupted", "epochs", "train_cpu_s")
@@ -135,6 +137,11 @@ class FieldModel(Model):
     def state_step_time_us(self, points: np.ndarray, calls: int) -> float:
         f = self.coords.state_velocity(self.field)
         return time_per_call(f, [(np.array(p),) for p in points[:calls]])
+
+    def equilibria(self, demos: DemoSet) -> dict[str, Any] | None:
+        """``lfd.equilibria.equilibria_summary`` of the field on its training demos, on one thread."""
+        with torch_threads(1):
+            return equilibria_summary(self.field, demos)
 
     def velocities(self, points: np.ndarray) -> np.ndarray:
         with np.errstate(all="ignore"):

@@ -114,6 +114,12 @@ class Model(ABC):
         """The velocity field at points, shape (..., D) (for streamlines), or None (a DMP)."""
         return None
 
+    def equilibria(self, demos: DemoSet) -> dict[str, Any] | None:
+        """The search for equilibria and closed orbits other than the goal in the demos' box grown by
+        half (``lfd.equilibria.equilibria_summary``), for the model trained on ``demos``; None for a
+        model without an autonomous field (the DMP reaches its goal by construction)."""
+        return None
+
     def batch_step(self, points: np.ndarray) -> np.ndarray | None:
         """One batched evaluation of the model's step at points, shape (B, D), as a loop would
         call it, or None (a DMP steps one state at a time)."""

@@ -69,10 +69,25 @@ TRAIN_SUMMARY = mean_median("train (s)", "train_time_s", ".2f")
 TRAIN_ROW = row_value("train (s)", "train_time_s", ".2f")
 
 
+def _equilibria_text(e: dict[str, Any] | None) -> str:
+    if e is None:
+        return "—"
+    return (f"{e['units_clean']} clean; {e['spurious_attractors']} attractor(s), "
+            f"{e['closed_orbits']} orbit(s)")
+
+
+#: the search for spurious equilibria and closed orbits (``lfd.equilibria``): units whose field has
+#: none, and how many there are in all; per unit, the spurious attractors of the worst seed
+EQUILIBRIA_SUMMARY = Column("spurious equilibria (search)", lambda s: s.get("equilibria"), _equilibria_text)
+EQUILIBRIA_ROW = Column("spurious attractors", lambda r: math.nan if r.get("equilibria") is None
+                        else float(r["equilibria"]["spurious_attractors"] + r["equilibria"]["closed_orbits"]),
+                        lambda v: fmt(v, ".0f"))
+
+
 def summary_table(suite: Suite, summary: dict[str, Any], split: str) -> str:
     """One row per learner with the split: each metric 'mean / median' over units, then (in-sample)
     the suite's columns, (held-out) the training time."""
-    extras = suite.summary_columns() if split == IN_SAMPLE else [TRAIN_SUMMARY]
+    extras = [*suite.summary_columns(), EQUILIBRIA_SUMMARY] if split == IN_SAMPLE else [TRAIN_SUMMARY]
     header = ["learner", f"{suite.unit}s"] + [suite.labels[m] for m in suite.metrics] + [c.label for c in extras]
     return table(header, _learner_rows(summary, split, lambda s: [
         *(mean_median("", m, suite.formats[m]).text(s["metrics"][m]) for m in suite.metrics),
@@ -89,7 +104,7 @@ def unit_table(suite: Suite, rows: dict[str, dict[str, Any]], units: list[str], 
     """One row per unit, then the **Mean** and **Median** rows over units."""
     units = [u for u in units if u in rows]
     cols = [metric_column(suite, m) for m in suite.metrics]
-    cols += suite.unit_columns() if split == IN_SAMPLE else [TRAIN_ROW]
+    cols += [*suite.unit_columns(), EQUILIBRIA_ROW] if split == IN_SAMPLE else [TRAIN_ROW]
     body = [[u] + [c.text(c.value(rows[u])) for c in cols] for u in units]
     for name, agg in (("**Mean**", np.mean), ("**Median**", np.median)):
         with np.errstate(invalid="ignore"):

@@ -156,6 +156,7 @@ class Suite(ABC):
             "metrics": {m: float(np.mean(v)) for m, v in per.items()}, "per_demo": per}
         if cell.fold is None:
             extra, arrays = self.in_sample(model, demos, cell.unit, y)
+            extra["equilibria"] = model.equilibria(demos)
         else:
             extra, arrays = {}, {"reproduction": y}
         record.update(extra)

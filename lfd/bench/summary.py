@@ -54,6 +54,7 @@ def per_unit(suite: Suite, records: list[dict[str, Any]], learner: str, split: s
         }
         if split == IN_SAMPLE:
             row.update(suite.unit_row(rs))
+            row["equilibria"] = equilibria_row(rs)
         out[unit] = row
     return out
 
@@ -76,7 +77,28 @@ def summarize_rows(suite: Suite, rows: dict[str, dict[str, Any]], split: str) ->
     }
     if split == IN_SAMPLE:
         s.update(suite.summary_extras(vals))
+        found = [v["equilibria"] for v in vals if v.get("equilibria") is not None]
+        s["equilibria"] = None if len(found) < len(vals) else {
+            "units_clean": sum(e["clean"] for e in found),
+            "spurious_attractors": int(sum(e["spurious_attractors"] for e in found)),
+            "closed_orbits": int(sum(e["closed_orbits"] for e in found)),
+            "goal_fraction": stats([e["goal_fraction"] for e in found])}
     return s
+
+
+def equilibria_row(records: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """A unit's equilibria search (``lfd.equilibria.equilibria_summary``) over its records: whether
+    every seed's field is clean, the most spurious attractors and closed orbits any seed's field has,
+    the smallest fraction of search starts that reach the goal, and the points (the first seed's);
+    None for a model without an autonomous field, or records made before the search."""
+    found: list[dict[str, Any]] = [r["equilibria"] for r in records if r.get("equilibria") is not None]
+    if not found or len(found) < len(records):
+        return None
+    return {"clean": all(e["clean"] for e in found),
+            "spurious_attractors": max(int(e["spurious_attractors"]) for e in found),
+            "closed_orbits": max(int(e["closed_orbits"]) for e in found),
+            "goal_fraction": min(float(e["goal_fraction"]) for e in found),
+            "points": found[0].get("points", [])}
 
 
 def compare_splits(suite: Suite, inside: dict[str, dict[str, Any]],

@@ -1,7 +1,8 @@
 """The ``lfd`` command: one subcommand per module of ``lfd.commands``.
 
 Each command module exposes ``add_parser(subparsers) -> argparse.ArgumentParser`` and
-``run(args) -> int``. Add a command by writing its module and appending its name to COMMANDS.
+``run(args) -> int``, and may expose ``preload(args) -> tuple of str``, the modules its run needs
+(default ``PRELOAD``). Add a command by writing its module and appending its name to COMMANDS.
 Command modules import torch, numpy and the like inside ``run``, never at module level or in
 ``add_parser``: ``lfd --help`` builds every parser and must stay fast (tests/test_hostile.py).
 Every user error (``LfdError``, an ``OSError`` such as a missing, unreadable or unwritable
@@ -60,23 +61,38 @@ def _version() -> str:
         return "unknown"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with every command of COMMANDS registered.
+class _Version(argparse.Action):
+    """``--version``: prints ``lfd <version>`` and exits; the version is looked up only then."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS,
+                 default: str = argparse.SUPPRESS, help: str = "show program's version number and exit") -> None:
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> NoReturn:
+        sys.stdout.write(f"lfd {_version()}\n")
+        parser.exit()
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The top-level parser with every command of COMMANDS registered (``only``: that command alone,
+    for a command line that names it first: its parser, errors and help are the same).
 
     Building it imports only the command modules, never torch: ``lfd --help`` stays fast.
     """
     parser = _Parser(prog="lfd", description="Learn a velocity field from demonstrations, "
                      "evaluate it and plot it.")
-    parser.add_argument("--version", action="version", version=f"lfd {_version()}")
+    parser.add_argument("--version", action=_Version)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    for name in COMMANDS:
+    for name in COMMANDS if only is None else (only,):
         module = importlib.import_module(f"lfd.commands.{name}")
-        module.add_parser(sub).set_defaults(_run=module.run)
+        module.add_parser(sub).set_defaults(_run=module.run, _preload=getattr(module, "preload", None))
     return parser
 
 
-# imported with interrupts deferred before a command runs (lfd.interrupts.DeferredInterrupts)
+# imported with interrupts deferred before a command runs (lfd.interrupts.DeferredInterrupts), unless
+# the command names its own (its module's ``preload(args)``: ``lfd train`` imports only its learner's)
 PRELOAD = ("torch", "numpy", "torchdiffeq", "lfd.demos", "lfd.field", "lfd.learners")
 
 
@@ -96,10 +112,12 @@ def _main(argv: Sequence[str] | None) -> int:
 
     with DeferredInterrupts("lfd"):
         try:
-            args = build_parser().parse_args(argv)
+            words = list(sys.argv[1:] if argv is None else argv)
+            # a command line that starts with a command builds that command's parser alone
+            args = build_parser(words[0] if words and words[0] in COMMANDS else None).parse_args(words)
         except SystemExit as e:  # --help (0) or a usage error (2), already printed
             return int(e.code or 0) if not isinstance(e.code, str) else EXIT_USAGE
-        for module in PRELOAD:
+        for module in (PRELOAD if args._preload is None else args._preload(args)):
             importlib.import_module(module)
     from lfd.threads import torch_threads
 

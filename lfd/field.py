@@ -31,7 +31,6 @@ from collections.abc import Callable
 from typing import Any, ClassVar, Protocol, TypeGuard
 
 import numpy as np
-import pinocchio as pin
 import torch
 from torch import Tensor
 
@@ -322,9 +321,7 @@ class VelocityField(Guarantees):
         x (3,), q (4,) (w, x, y, z): Eq. (P1), the field, then Eq. (P3)."""
         if self.chart is None:
             raise ValueError("pose_velocity needs a pose field (a field trained on poses)")
-        qa = np.asarray(q, dtype=np.float64)
-        rot = pin.Quaternion(float(qa[0]), float(qa[1]), float(qa[2]), float(qa[3])).normalized().toRotationMatrix()
-        z = self.chart.point(np.asarray(x, dtype=np.float64), rot)
+        z = self.chart.point_of(x, q)
         return self.chart.twist(z, cached_single_point_evaluator(self)(z))
 
     @property

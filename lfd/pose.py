@@ -10,27 +10,28 @@ Eqs. (P1)-(P4)):
     Eq. (P4): angle(R_1, R_2) = |log(R_1^T R_2)| <= |r_1 - r_2|  (exp at R_g does not increase
               distances; the reason below),
 
-with l = ``ROTATION_LENGTH`` metres per radian (Eq. (P4): the curve R_g exp(r_1 + s (r_2 - r_1)),
-s in [0, 1], has body velocity J_r(r(s)) (r_2 - r_1), and J_r's singular values are 1, 1 and
-|sin(theta / 2)| / (theta / 2) <= 1, so its length, at least the geodesic angle, is at most
-|r_1 - r_2|, for every r_1, r_2 in R^3), so that one learner's single scale fits positions and
-turns alike. Every learner then learns a field on R^6 as it would on positions, and a pose field is
-that field with its ``PoseChart``. The chart is one-to-one for angles below pi; at the goal's antipode
-(a half turn away, the cut locus) log jumps, which is the known obstruction: no continuous field on
-SO(3) has a globally attracting equilibrium.
+with l = ``ROTATION_LENGTH`` metres per radian (Eq. (P4): J_r's singular values are 1, 1 and
+|sin(theta / 2)| / (theta / 2) <= 1, so the curve R_g exp(r_1 + s (r_2 - r_1)), s in [0, 1], is at
+most |r_1 - r_2| long), so that one learner's single scale fits positions and turns alike. Every
+learner then learns a field on R^6 as it would on positions, and a pose field is that field with its
+``PoseChart``. The chart is one-to-one for angles below pi; at the goal's antipode (a half turn
+away, the cut locus) log jumps, the known obstruction: no continuous field on SO(3) has a globally
+attracting equilibrium.
 
 Quaternions are (w, x, y, z), scalar first, as in the data sets; a quaternion and its negative are
-the same orientation (the double cover S^3 -> SO(3)). The maps use Pinocchio's ``log3``, ``exp3`` and
-``Jexp3``; conversions, the mean and the geodesic angle are ``lfd.rotations``' (re-exported here).
+the same orientation (the double cover S^3 -> SO(3)). One pose (``point``, ``point_of``, ``twist``)
+is one compiled call (``lfd.pose_kernel``, numba); batches use Pinocchio's ``log3`` and ``exp3``. Both
+are imported on first use. Conversions, the mean and the geodesic angle are ``lfd.rotations``'
+(re-exported here).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
-import pinocchio as pin
 
 from lfd.demos.demoset import DemoSet
 from lfd.rotations import (
@@ -45,6 +46,32 @@ from lfd.rotations import (
 
 __all__ = ["ROTATION_LENGTH", "UNIT_TOLERANCE", "PoseChart", "chart_demos", "continuous", "geodesic_angle",
            "matrix_quaternions", "mean_quaternion", "quaternion_matrices"]
+
+
+_KERNELS: Any = None
+
+
+def _kernels() -> Any:
+    """``lfd.pose_kernel``, imported on first use (it imports numba: ``import lfd.pose`` stays cheap)."""
+    global _KERNELS
+    if _KERNELS is None:
+        from lfd import pose_kernel
+
+        _KERNELS = pose_kernel
+    return _KERNELS
+
+
+def _pin() -> Any:
+    """Pinocchio, imported on first use (a noticeable part of a second that training on positions
+    need not pay)."""
+    import pinocchio
+
+    return pinocchio
+
+
+def _f64(a: Any) -> np.ndarray:
+    """a as a float64 ndarray (itself when it is one)."""
+    return a if type(a) is np.ndarray and a.dtype == np.float64 else np.asarray(a, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -65,6 +92,7 @@ class PoseChart:
     def __post_init__(self) -> None:
         rot = np.ascontiguousarray(self.goal_rotation, dtype=np.float64)
         object.__setattr__(self, "goal_rotation", rot)
+        object.__setattr__(self, "length", float(self.length))
         object.__setattr__(self, "_goal_t", np.ascontiguousarray(rot.T))
         object.__setattr__(self, "_goal_over_l", rot / float(self.length))   # R_g / l
 
@@ -86,10 +114,15 @@ class PoseChart:
         return matrix_quaternions(self.goal_rotation)
 
     def rotation_coordinates(self, rot: np.ndarray) -> np.ndarray:
-        """l log(R_g^T R) of Eq. (P1): rotations of shape (..., 3, 3) -> shape (..., 3)."""
+        """l log(R_g^T R) of Eq. (P1): rotations of shape (..., 3, 3) -> shape (..., 3) (one rotation,
+        shape (3, 3): one compiled call, a control loop's observation)."""
         rot = np.asarray(rot, dtype=np.float64)
+        if rot.shape == (3, 3):
+            one = np.empty(3)
+            _kernels().chart_rotation(rot, self._goal_t, self.length, one)
+            return one
         rel = np.einsum("ji,...jk->...ik", self.goal_rotation, rot).reshape(-1, 3, 3)
-        out = np.stack([pin.log3(r) for r in rel]) if len(rel) else np.zeros((0, 3))
+        out = np.stack([_pin().log3(r) for r in rel]) if len(rel) else np.zeros((0, 3))
         return self.length * out.reshape(rot.shape[:-2] + (3,))
 
     def to_chart(self, x: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -101,7 +134,7 @@ class PoseChart:
         """R = R_g exp(z_rot / l) of Eq. (P2): z (..., 6) -> rotations (..., 3, 3)."""
         z = np.asarray(z, dtype=np.float64)
         r = z[..., 3:6].reshape(-1, 3) / self.length
-        out = np.stack([self.goal_rotation @ pin.exp3(v) for v in r]) if len(r) else np.zeros((0, 3, 3))
+        out = np.stack([self.goal_rotation @ _pin().exp3(v) for v in r]) if len(r) else np.zeros((0, 3, 3))
         return out.reshape(z.shape[:-1] + (3, 3))
 
     def from_chart(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -110,20 +143,28 @@ class PoseChart:
         return z[..., :3].copy(), matrix_quaternions(self.rotations(z))
 
     def point(self, x: np.ndarray, rot: np.ndarray) -> np.ndarray:
-        """Eq. (P1) for one pose: x (3,) and its rotation matrix rot (3, 3) -> z (6,) (the control
-        loop's fast path; ``to_chart`` for batches of quaternions)."""
+        """Eq. (P1) for one pose: x (3,) and its rotation matrix rot (3, 3) -> z (6,), one compiled
+        call (the control loop's fast path; ``to_chart`` for batches of quaternions)."""
         z = np.empty(6)
-        z[:3] = x
-        z[3:] = self.length * pin.log3(self._goal_t.dot(rot))
+        _kernels().chart_point(_f64(x), _f64(rot), self._goal_t, self.length, z)
+        return z
+
+    def point_of(self, x: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Eq. (P1) for one pose: x (3,) and its quaternion q (4,) (w, x, y, z; normalised here)
+        -> z (6,)."""
+        k = _kernels()
+        rot = np.empty((3, 3))
+        k.quaternion_rotation(_f64(q), rot)
+        z = np.empty(6)
+        k.chart_point(_f64(x), rot, self._goal_t, self.length, z)
         return z
 
     def twist(self, z: np.ndarray, zdot: np.ndarray) -> np.ndarray:
         """(v, omega) of Eq. (P3), world axes [m/s, rad/s], shape (6,), for one chart point z (6,)
         and its chart velocity zdot (6,): v = zdot[:3], omega = R J_r(r) r_dot = R_g J_l(r) r_dot, since
-        exp(r) J_r(r) = J_l(r) = J_r(-r) (SO(3)'s left Jacobian; one ``Jexp3`` call)."""
+        exp(r) J_r(r) = J_l(r) = J_r(-r) (SO(3)'s left Jacobian), one compiled call."""
         out = np.empty(6)
-        out[:3] = zdot[:3]
-        out[3:] = self._goal_over_l.dot(pin.Jexp3(z[3:6] * (-1.0 / self.length)).dot(zdot[3:6]))
+        _kernels().chart_twist(_f64(z), _f64(zdot), self._goal_over_l, self.length, out)
         return out
 
     def angle_to_goal(self, z: np.ndarray) -> np.ndarray:

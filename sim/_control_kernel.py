@@ -6,7 +6,9 @@ once per machine (``cache=True`` keeps the machine code beside this file). The h
 ``njit`` functions that numba inlines into ``kernel`` (``inline="always"``): one compiled function.
 
 The parameter vector ``prm`` is written by ``FieldController._pack``; its layout, and ``HEADER``,
-live in ``sim._kernel_layout``, which both sides import.
+live in ``sim._kernel_layout``, which both sides import. A pose task's chart point (Eq. (P1),
+``pose_point``) and twist (Eq. (P3), inside ``kernel``) use ``lfd.pose_kernel``'s log and right
+Jacobian of SO(3), inlined.
 """
 
 from __future__ import annotations
@@ -14,22 +16,17 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from lfd.pose_kernel import jexp3, log3
 from sim._kernel_layout import HEADER
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
 def _linear_twist(v: np.ndarray, p: np.ndarray, prm: np.ndarray, d: int, tw: np.ndarray
                   ) -> None:  # pragma: no cover - compiled
-    """tw[:3] = s A v - k_n n (n . p - n . o) (the second term on a task plane only); tw[3:] = 0;
-    a pose task (prm[15] set): tw = v, the world twist the controller computed.
+    """tw[:3] = s A v - k_n n (n . p - n . o) (the second term on a task plane only); tw[3:] = 0.
 
-    v : (d,) task velocity (a pose task: (6,) twist); p : (3,) tool position; prm : the parameter
-    vector; tw : (6,) output.
+    v : (d,) task velocity; p : (3,) tool position; prm : the parameter vector; tw : (6,) output.
     """
-    if prm[15] != 0.0:
-        for i in range(6):
-            tw[i] = v[i]
-        return
     o = HEADER
     for i in range(3):
         acc = 0.0
@@ -41,6 +38,45 @@ def _linear_twist(v: np.ndarray, p: np.ndarray, prm: np.ndarray, d: int, tw: np.
         e = prm[o + 12] * p[0] + prm[o + 13] * p[1] + prm[o + 14] * p[2] - prm[2]
         for i in range(3):
             tw[i] -= prm[o + 9 + i] * e
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _pose_log(rot: np.ndarray, prm: np.ndarray, b: int, out: np.ndarray, o: int
+              ) -> None:  # pragma: no cover - compiled
+    """out[o:o + 3] = l log(R_g^T R^T rot), the rotation coordinates of Eq. (P1) of the world tool
+    rotation rot (3, 3); the pose block of prm starts at b (``sim._kernel_layout``)."""
+    rel = np.empty((3, 3))
+    for i in range(3):
+        m0, m1, m2 = prm[b + 12 + 3 * i], prm[b + 13 + 3 * i], prm[b + 14 + 3 * i]
+        for j in range(3):
+            rel[i, j] = m0 * rot[0, j] + m1 * rot[1, j] + m2 * rot[2, j]
+    log3(rel, prm[b + 30], out, o)
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _pose_twist(v: np.ndarray, rot: np.ndarray, prm: np.ndarray, b: int, tw: np.ndarray
+                ) -> None:  # pragma: no cover - compiled
+    """The world twist of a pose task's command v = z_dot (6,) at the chart point z of the tool
+    rotation rot (3, 3) (Eq. (P3)): tw[:3] = s A v[:3], tw[3:] = R R_g / l J_r(-z_rot / l) v[3:]."""
+    zr = np.empty(3)
+    _pose_log(rot, prm, b, zr, 0)
+    k = -1.0 / prm[b + 30]
+    y0, y1, y2 = jexp3(zr[0] * k, zr[1] * k, zr[2] * k, v, 3)
+    o = HEADER + 15
+    for i in range(3):
+        tw[i] = prm[o + 3 * i] * v[0] + prm[o + 3 * i + 1] * v[1] + prm[o + 3 * i + 2] * v[2]
+        tw[3 + i] = prm[b + 21 + 3 * i] * y0 + prm[b + 22 + 3 * i] * y1 + prm[b + 23 + 3 * i] * y2
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True)
+def pose_point(p: np.ndarray, rot: np.ndarray, prm: np.ndarray, z: np.ndarray) -> None:  # pragma: no cover
+    """z (6,) = (A^T (p - o) / s, l log(R_g^T R^T rot)), Eq. (P1) of the tool pose p (3,), rot (3, 3),
+    world, on a pose task (``FieldController.to_task``)."""
+    b = HEADER + 15 + 3 * int(prm[11]) + 6 * int(prm[12])
+    dx, dy, dz = p[0] - prm[b], p[1] - prm[b + 1], p[2] - prm[b + 2]
+    for i in range(3):
+        z[i] = prm[b + 3 + 3 * i] * dx + prm[b + 4 + 3 * i] * dy + prm[b + 5 + 3 * i] * dz
+    _pose_log(rot, prm, b, z, 3)
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
@@ -177,14 +213,18 @@ def kernel(jac: np.ndarray, p: np.ndarray, rot: np.ndarray, v: np.ndarray, q: np
     """Twist + DLS fast path + actuator command; see ``FieldController.fast_command``.
 
     jac : (6, n) tool Jacobian; p : (3,) tool position; rot : (3, 3) tool rotation; v : (d,) task
-    velocity; q : (n,) joints; qvel, bias : (nv,) MuJoCo's qvel and qfrc_bias; qprev : (n,) the last
-    qdot_ref (updated); prm : the parameter vector (layout: ``sim._kernel_layout``); out : (2 n + nv,).
+    velocity (a pose task: the chart velocity z_dot (6,), Eq. (P3)); q : (n,) joints; qvel, bias :
+    (nv,) MuJoCo's qvel and qfrc_bias; qprev : (n,) the last qdot_ref (updated); prm : the parameter
+    vector (layout: ``sim._kernel_layout``); out : (2 n + nv,).
     Returns 0 (done: out holds qdot_ref (n), a (nv, torque) and the command's base (n)), else the
     reason to take the Python path (1: rotation near pi, 2: near a singularity, 3: near a limit).
     """
     d, n, nv, m = int(prm[11]), int(prm[12]), int(prm[13]), int(prm[14])
     tw = np.empty(6)
-    _linear_twist(v, p, prm, d, tw)
+    if prm[15] != 0.0:
+        _pose_twist(v, rot, prm, HEADER + 15 + 3 * d + 6 * n, tw)
+    else:
+        _linear_twist(v, p, prm, d, tw)
     if prm[1] != 0.0 and _rotation_twist(rot, prm, tw) != 0:
         return 1
     status = _dls(jac, tw, q, prm, n, m, out)

@@ -10,7 +10,9 @@ for ``torque`` motors, Eq. (S3).
 ``fast_command`` runs twist, DLS and command in one compiled numba function
 (``sim._control_kernel.kernel``) on MuJoCo's tool site and its Jacobian after ``mj_step1``; it hands
 back to the Python path (``twist``, ``solve_ik``, ``actuate``: the same results up to round-off) near
-a singularity or a joint limit, for a tool orientation error near pi, and for the ``pink`` IK.
+a singularity or a joint limit, for a tool orientation error near pi on a position task, and for the
+``pink`` IK. A pose task's chart point (``to_task``) is one compiled call too
+(``sim._control_kernel.pose_point``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from robots import DifferentialIK, RobotModel
 from robots.ik.constrained import ConstrainedIK, QpGains
 from robots.loader import ACTUATIONS as ACTUATIONS  # re-exported: the actuations a robot is loaded with
 from sim._kernel_layout import HEADER as _HEADER  # the kernel parameter vector's head
+from sim._kernel_layout import POSE_BLOCK as _POSE_BLOCK
 from sim.collision import ArmClearance, Clearance
 from sim.errors import SimError
 from sim.placement import Placement
@@ -34,17 +37,17 @@ from sim.placement import Placement
 DYNAMICS: tuple[str, ...] = ("mujoco", "pinocchio")
 _mul_m, _add, _jac_site = mujoco.mj_mulM, np.add, mujoco.mj_jacSite   # bound once: called every control step
 
-_KERNEL: Any = None
+_KERNELS: Any = None
 
 
-def _get_kernel() -> Any:
-    """The compiled control step (``sim._control_kernel.kernel``; numba is imported on first use)."""
-    global _KERNEL
-    if _KERNEL is None:
-        from sim._control_kernel import kernel
+def _get_kernels() -> Any:
+    """The compiled control step and chart point (``sim._control_kernel``; numba is imported on first use)."""
+    global _KERNELS
+    if _KERNELS is None:
+        from sim import _control_kernel
 
-        _KERNEL = kernel
-    return _KERNEL
+        _KERNELS = _control_kernel
+    return _KERNELS
 
 
 @dataclass(frozen=True)
@@ -209,7 +212,9 @@ class FieldController:
         self._macc_arm: np.ndarray | None = self._macc[lo:lo + n] if contiguous else None
         self._prm = self._pack(model) if self._fast else None
         self._fast_ok = self._fast and (not self._torque or self.dynamics == "mujoco")
-        self._kernel: Any = _get_kernel() if self._fast_ok else None
+        self._kernel: Any = _get_kernels().kernel if self._fast_ok else None
+        # a pose task's chart point, Eq. (P1), in one compiled call (from the pose block of the parameters)
+        self._pose_point: Any = _get_kernels().pose_point if self._prm is not None and self._pose else None
         self._data: mujoco.MjData | None = None
         self._site = int(model.site(self.robot.mj_ee_site).id)
         self._from_site = False
@@ -223,7 +228,8 @@ class FieldController:
         self._kin_q: np.ndarray | None = None
 
     def _pack(self, model: mujoco.MjModel) -> np.ndarray:
-        """The kernel's parameter vector, shape (_HEADER + 15 + 3 d + 6 n,) (layout: ``sim._kernel_layout``)."""
+        """The kernel's parameter vector, shape (_HEADER + 15 + 3 d + 6 n + _POSE_BLOCK,) (layout:
+        ``sim._kernel_layout``)."""
         fp = self.ik._impl.fast_params(self.dt)
         n, d = self.robot.n, self.placement.dim
         torque = self.actuation == "torque"
@@ -236,9 +242,15 @@ class FieldController:
                      len(self.ik.rows), float(self._pose))
         rref = np.zeros(9) if self.rotation_ref is None else self.rotation_ref.reshape(9)
         lead = self._lead if not torque else np.zeros(n)
+        pose = np.zeros(_POSE_BLOCK)
+        if self._chart is not None:   # Eq. (P1): z = (A^T (p - o) / s, l log(R_g^T R^T rot)); Eq. (P3)
+            chart = self._chart
+            pose[:] = np.concatenate([self._origin, self._At_s.reshape(9),
+                                      (chart.goal_rotation.T @ self._rot_t).ravel(),
+                                      (self._rot @ chart.goal_rotation / chart.length).ravel(), [chart.length]])
         return np.concatenate([head, rref, self._kn_n, self._normal, self._sA.reshape(3 * d), fp["q_home"],
                                fp["mid"], fp["fast_half"], self._damping, lead,
-                               self._dofs.astype(np.float64)]).astype(np.float64)
+                               self._dofs.astype(np.float64), pose]).astype(np.float64)
 
     def reset(self, q: np.ndarray) -> None:
         """Start a run at rest at q, shape (n,)."""
@@ -248,6 +260,9 @@ class FieldController:
         self.kin.update(np.asarray(q, dtype=np.float64))
         if self._prm is not None and self.rotation_ref is not None:
             self._prm[_HEADER:_HEADER + 9] = self.rotation_ref.reshape(9)
+        if self._pose_point is not None:   # compile (or load) now, as the kernel below
+            _, pos, rot = self.kin._placement()
+            self._pose_point(pos, rot, self._prm, np.empty(6))
         if self._kernel is not None:   # compile (or load from the cache) now, not in the first control step
             _, pos, rot = self.kin._placement()
             zeros = np.zeros(self._nv)
@@ -295,6 +310,11 @@ class FieldController:
             if self._d3:
                 return np.array((a0 * dx + a1 * dy + a2 * dz, b0 * dx + b1 * dy + b2 * dz, c0 * dx + c1 * dy + c2 * dz))
             return np.array((a0 * dx + a1 * dy + a2 * dz, b0 * dx + b1 * dy + b2 * dz))
+        if self._pose_point is not None:
+            z = np.empty(6)
+            self._pose_point(p, self.measured_rotation(), self._prm, z)
+            self._z = z
+            return z
         assert self._chart is not None
         self._z = z = self._chart.point(self._At_s.dot(p - self._origin), self._rot_t.dot(self.measured_rotation()))
         return z
@@ -395,10 +415,10 @@ class FieldController:
             else:
                 _, pos, rot = self.kin._pose or self.kin._placement()
                 jac = self.kin._jac
-            vk = self.pose_twist(v) if self._pose else v
             if guard is not None and self._torque:
                 self._prev[:] = self._qdot_prev
-            status = self._kernel(jac, pos, rot, vk, q, self._qvel, self._bias, self._qdot_prev,
+            # a pose task's twist (Eq. (P3)) is the kernel's, at the chart point of this pose
+            status = self._kernel(jac, pos, rot, v, q, self._qvel, self._bias, self._qdot_prev,
                                   self._prm, self._out)
             # a damper binds for the DLS's qdot_ref (or the kernel handed back): the IK as a QP with the
             # dampers (``sim.collision``); ``check`` measures only the pairs whose row could bind

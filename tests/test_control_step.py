@@ -20,6 +20,7 @@ from known_fields import sink_field
 
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
+from lfd.demos import robottasks
 from robots import RobotModel, load_robot
 from sim.errors import SimError
 from sim.loop import execute
@@ -118,6 +119,45 @@ def test_fused_command_equals_the_python_path(name: str, actuation: str) -> None
         ctl.bind(d)
         ctl._qdot_prev = prev.copy()
         ctl.measure_site(q)
+        ctl.fast_command(m, d, q, v)
+        assert np.abs(d.ctrl[acts] - slow).max() <= CTRL_TOL * max(1.0, np.abs(slow).max())
+
+
+@pytest.mark.parametrize("actuation", ["torque", "position"])
+def test_fused_pose_command_equals_the_python_path(actuation: str) -> None:
+    """A pose task (Eqs. (P1), (P3)): the compiled chart point of ``to_task`` against the chart's
+    own, and the kernel's twist + DLS + command against ``twist`` / ``solve_ik`` / ``actuate``, from
+    Pinocchio's pose and from MuJoCo's site."""
+    rec = robottasks("pouring")
+    demos = lfd.DemoSet(rec.t[:2, ::4], rec.x[:2, ::4], q=rec.q[:2, ::4])
+    field = lfd.train("tracking", demos)
+    env = sim.make_environment(_robot("panda", actuation), demos=demos, learner_field=field, duration_s=0.5)
+    env.reset()
+    ctl, m, d = env.task.controller, env.physics.model.ptr, env.physics.data.ptr
+    robot, chart = _robot("panda", actuation), env.task.placement.chart
+    assert chart is not None and ctl._pose_point is not None and ctl._kernel is not None
+    acts, f = robot.mj_actuator_ids, field.single_point_evaluator()
+    rng = np.random.default_rng(3)
+    q0 = d.qpos[robot.mj_qpos_adr].copy()
+    for _ in range(10):
+        q, qd = q0 + 0.1 * rng.normal(size=robot.n), 0.3 * rng.normal(size=robot.n)
+        d.qpos[robot.mj_qpos_adr], d.qvel[robot.mj_dof_adr] = q, qd
+        mujoco.mj_step1(m, d)
+        p = ctl.measure(q)
+        z = ctl.to_task(p)
+        want = chart.point(ctl._At_s.dot(p - ctl._origin), ctl._rot_t.dot(ctl.measured_rotation()))
+        np.testing.assert_allclose(z, want, rtol=0, atol=1e-12)
+        v = f(z)
+        prev = np.array(rng.normal(size=robot.n))
+        ctl._qdot_prev = prev.copy()
+        ctl.fast_command(m, d, q, v)
+        fast = d.ctrl[acts].copy()
+        ctl._qdot_prev = prev.copy()
+        slow = ctl.command(q, d.qvel[robot.mj_dof_adr].copy(), v, m, d)
+        assert np.abs(fast - slow).max() <= CTRL_TOL * max(1.0, np.abs(slow).max())
+        ctl.bind(d)
+        ctl._qdot_prev = prev.copy()
+        np.testing.assert_allclose(ctl.to_task(ctl.measure_site(q)), z, rtol=0, atol=1e-12)
         ctl.fast_command(m, d, q, v)
         assert np.abs(d.ctrl[acts] - slow).max() <= CTRL_TOL * max(1.0, np.abs(slow).max())
 

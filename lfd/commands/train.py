@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 from typing import Any
 
 from lfd.errors import ConfigError
@@ -42,11 +43,27 @@ def key_value(text: str) -> tuple[str, str]:
     return key.strip(), value.strip()
 
 
-def learner_names() -> tuple[str, ...]:
-    """The registered learners, read from lfd/learners/__init__.py without importing torch."""
+@functools.cache
+def _registry() -> dict[str, str]:
+    """The learner registry (name -> ``module:Class``), read from lfd/learners/__init__.py without
+    importing torch."""
     from lfd.commands import source_constant
 
-    return tuple(source_constant("lfd.learners", "_REGISTRY"))
+    return dict(source_constant("lfd.learners", "_REGISTRY"))
+
+
+def learner_names() -> tuple[str, ...]:
+    """The registered learners, read from lfd/learners/__init__.py without importing torch."""
+    return tuple(_registry())
+
+
+def preload(args: argparse.Namespace) -> tuple[str, ...]:
+    """The modules ``run`` imports (``lfd.cli`` imports them first, with interrupts deferred): the
+    demos, the field, the registry and the chosen learner's module, which imports what the learner
+    needs (torchdiffeq, numba, ...) and nothing for the others."""
+    entry = _registry().get(args.learner)
+    learner = () if entry is None else (entry.split(":")[0],)   # an unknown name: ``run`` says so
+    return ("torch", "numpy", "lfd.demos", "lfd.field", "lfd.learners", *learner)
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:

@@ -33,19 +33,18 @@ from typing import Any, ClassVar, cast
 
 import numpy as np
 import torch
-from scipy.interpolate import make_lsq_spline
 from torch import nn
 
 from lfd import integrate
 from lfd.demos import DemoSet
 from lfd.field import ContractingField, PhasedRuns, VelocityField
 from lfd.learners.base import Learner
+from lfd.learners.tracking_reference import ALIGNMENTS, learn_reference
 from lfd.validate import check_bools, check_ints, check_positive
 
 DEFAULT_RATE = 3.0            # K, 1/s
 ERROR_FLOOR = 1e-5            # normalised units: Eq. (T5) is checked as |e(t)| <= bound + floor (RK4 error)
 PHASE_END = 0.01              # Eq. (T4): the phase slows linearly over its last 1% and stops at 1 exactly
-END_BLEND = 0.2               # Eq. (T1b): with end_at_goal, the reference blends onto the goal over this last part
 CONTRACTION_PROPERTY = (
     "for any phase law s(t), the tracking error e = x - r(s) obeys de/dt = -K e, so "
     "|x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t); for a given phase signal the x-subsystem "
@@ -69,6 +68,8 @@ class TrackingConfig:
     end_at_goal : blend the reference onto the goal over the last ``END_BLEND`` of the phase, Eq. (T1b):
         r(1 | x0) is then the goal exactly, for every start (``lfd.train`` sets it for poses, whose
         demos end at different orientations)
+    align : ``path`` (match the demos at equal fractions of their path length, timed by their mean
+        time fraction, Eq. (T1c)) or ``time`` (at equal fractions of their duration, Eq. (T1))
     """
 
     rate: float = DEFAULT_RATE
@@ -80,12 +81,15 @@ class TrackingConfig:
     start_noise: float = 0.02
     start_radius: float = 3.0
     end_at_goal: bool = False
+    align: str = "path"
 
     def __post_init__(self) -> None:
         check_positive(self, ("rate", "phase_tolerance", "start_noise"), to_float=True)
         check_ints(self, (("knots", 1, None), ("table", 16, None)))
         check_bools(self, ("phase_stop", "condition_start", "end_at_goal"))
         check_positive(self, ("start_radius",), to_float=True, allow_inf=True)
+        if self.align not in ALIGNMENTS:
+            raise ValueError(f"align must be one of {', '.join(ALIGNMENTS)}, got {self.align!r}")
 
 
 def _hermite_weights(w: Any, _unused: Any = None) -> tuple[Any, Any, Any, Any, Any, Any, Any, Any]:
@@ -276,14 +280,15 @@ class TrackingField(PhasedRuns, ContractingField):
 
     def phase_point_fn(self, x0: np.ndarray | None = None, clock_weight: Callable[[np.ndarray], float] | None = None
                        ) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
-        """A fast numpy evaluator (x (d,), s) -> (dx/dt (d,), ds/dt) in user units for control loops
-        (Eqs. (T3)-(T4); with ``condition_start``, for the run that started at x0). The same floats
-        as ``velocity`` up to round-off (tests/test_tracking.py).
+        """A fast evaluator (x (d,), s) -> (dx/dt (d,), ds/dt) in user units for control loops
+        (Eqs. (T3)-(T4); with ``condition_start``, for the run that started at x0): one compiled
+        call (``lfd.learners.tracking_kernel``), the same floats as ``velocity`` up to round-off
+        (tests/test_tracking.py).
 
         ``clock_weight``: x (d,) -> omega in [0, 1]; the phase stopping h of Eq. (T4) is then
         blended toward the clock, h + omega (1 - h) (Eq. (T4b) of docs/equations.md: an obstacle
-        wrapper passes its detour weight, so the phase keeps its pace while the tool detours).
-        None (the default): Eq. (T4) as is."""
+        wrapper passes its detour weight, so the phase keeps its pace while the tool detours),
+        in numpy (the weight is a Python callable). None (the default): Eq. (T4) as is."""
         mod = self.module
         ref, dref = mod.ref.numpy().copy(), mod.dref.numpy().copy()
         if x0 is not None and self.conditioned:
@@ -291,30 +296,12 @@ class TrackingField(PhasedRuns, ContractingField):
             ref = ref + mod.gain.numpy() @ delta
             dref = dref + mod.dgain.numpy() @ delta
         goal, sc, k, eps2 = self.norm.goal.copy(), float(self.norm.scale), mod.rate, mod.eps ** 2
-        inv_t, m, stop = 1.0 / float(mod.duration), ref.shape[0], mod.phase_stop
+        inv_t, stop = 1.0 / float(mod.duration), mod.phase_stop
+        if clock_weight is None:
+            from lfd.learners.tracking_kernel import phase_point_fn  # here: ``import lfd`` does not import numba
 
-        hs = 1.0 / (m - 1)
-
-        def f(x: np.ndarray, s: float) -> tuple[np.ndarray, float]:
-            u = min(max(s, 0.0), 1.0) * (m - 1)
-            i0 = min(int(u), m - 2)
-            a0, b0, a1, b1, da0, db0, da1, db1 = _hermite_weights(u - i0, None)
-            p0, p1, m0, m1 = ref[i0], ref[i0 + 1], dref[i0] * hs, dref[i0 + 1] * hs
-            r = a0 * p0 + b0 * m0 + a1 * p1 + b1 * m1
-            dr = (da0 * p0 + db0 * m0 + da1 * p1 + db1 * m1) / hs
-            xn = (np.asarray(x, dtype=np.float64) - goal) / sc
-            e = xn - r
-            end = min(max((1.0 - s) / PHASE_END, 0.0), 1.0)
-            if not stop:
-                sdot = inv_t * end
-            elif clock_weight is None:
-                sdot = inv_t / (1.0 + float(e.dot(e)) / eps2) * end
-            else:   # Eq. (T4b)
-                h = 1.0 / (1.0 + float(e.dot(e)) / eps2)
-                sdot = inv_t * (h + clock_weight(x) * (1.0 - h)) * end
-            return (sdot * dr - k * e) * sc, sdot
-
-        return f
+            return phase_point_fn(ref, dref, goal, sc, k, eps2, inv_t, stop, PHASE_END)
+        return _numpy_phase_point_fn(ref, dref, goal, sc, k, eps2, inv_t, stop, clock_weight)
 
     # ---- rollouts integrate (x, s) jointly
     def rollout_with_phase(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1,
@@ -367,6 +354,17 @@ class TrackingField(PhasedRuns, ContractingField):
         shape (B, T, d) (or (T, d)) in user units (``rollout_with_phase`` also returns s)."""
         return self.rollout_with_phase(x0, t, method, substeps)[0]
 
+    def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The autonomous view (``TrackingModule.forward``) for one point, x (d,) -> dx/dt (d,), user
+        units, in one compiled call (``lfd.learners.tracking_kernel``; the numpy twin is
+        ``_point_fn_normalized``, equal to round-off): Eq. (T3) at the phase of the nearest
+        tabulated reference point."""
+        from lfd.learners.tracking_kernel import nearest_point_fn  # here: ``import lfd`` does not import numba
+
+        mod = self.module
+        return nearest_point_fn(mod.ref.numpy(), mod.dref.numpy(), self.norm.goal, float(self.norm.scale), mod.rate,
+                                mod.eps ** 2, 1.0 / self.duration, mod.phase_stop, PHASE_END)
+
     def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
         """The autonomous view (``TrackingModule.forward``) for one point, in numpy."""
         ref, dref = self.module.ref.numpy().copy(), self.module.dref.numpy().copy()
@@ -383,27 +381,38 @@ class TrackingField(PhasedRuns, ContractingField):
         return f
 
 
-# ---------------------------------------------------------------- learning the reference
+def _numpy_phase_point_fn(ref: np.ndarray, dref: np.ndarray, goal: np.ndarray, sc: float, k: float, eps2: float,
+                          inv_t: float, stop: bool, clock_weight: Callable[[np.ndarray], float] | None = None
+                          ) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
+    """Eqs. (T3)-(T4) (with ``clock_weight``, Eq. (T4b)) for one point in numpy: (x (d,), s) ->
+    (dx/dt (d,), ds/dt), user units (``TrackingField.phase_point_fn``'s arguments and tables;
+    the twin of ``lfd.learners.tracking_kernel.phase_point_fn``)."""
+    m = ref.shape[0]
+    hs = 1.0 / (m - 1)
 
-def phase_splines(demos: DemoSet, knots: int, phases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each demo's least-squares cubic B-spline in its normalised time s = (t - t_0) / T_i.
+    def f(x: np.ndarray, s: float) -> tuple[np.ndarray, float]:
+        u = min(max(s, 0.0), 1.0) * (m - 1)
+        i0 = min(int(u), m - 2)
+        a0, b0, a1, b1, da0, db0, da1, db1 = _hermite_weights(u - i0, None)
+        p0, p1, m0, m1 = ref[i0], ref[i0 + 1], dref[i0] * hs, dref[i0 + 1] * hs
+        r = a0 * p0 + b0 * m0 + a1 * p1 + b1 * m1
+        dr = (da0 * p0 + db0 * m0 + da1 * p1 + db1 * m1) / hs
+        xn = (np.asarray(x, dtype=np.float64) - goal) / sc
+        e = xn - r
+        end = min(max((1.0 - s) / PHASE_END, 0.0), 1.0)
+        if not stop:
+            sdot = inv_t * end
+        elif clock_weight is None:
+            sdot = inv_t / (1.0 + float(e.dot(e)) / eps2) * end
+        else:   # Eq. (T4b)
+            h = 1.0 / (1.0 + float(e.dot(e)) / eps2)
+            sdot = inv_t * (h + clock_weight(x) * (1.0 - h)) * end
+        return (sdot * dr - k * e) * sc, sdot
 
-    demos : normalised demos, x of shape (N, T, d); phases : shape (M,) in [0, 1].
-    Returns x_i(s_j) and dx_i/ds(s_j), each shape (N, M, d).
-    """
-    n_int = max(1, min(knots, demos.n_samples // 3))
-    inner = np.linspace(0.0, 1.0, n_int + 2)[1:-1]
-    tk = np.concatenate([[0.0] * 4, inner, [1.0] * 4])
-    xs, dxs = [], []
-    for t, x in zip(demos.t, demos.x):
-        s = (t - t[0]) / (t[-1] - t[0])
-        w = np.ones(len(s))
-        w[[0, -1]] = 1e3                       # pin the spline to the start and the goal
-        spl = make_lsq_spline(s, x, tk, k=3, w=w)
-        xs.append(spl(phases))
-        dxs.append(spl.derivative()(phases))
-    return np.stack(xs), np.stack(dxs)
+    return f
 
+
+# ---------------------------------------------------------------- learning: lfd.learners.tracking_reference
 
 class TrackingLearner(Learner):
     """The mean phase-indexed demo as the reference, tracked at rate K with phase stopping."""
@@ -424,60 +433,31 @@ class TrackingLearner(Learner):
 
     @classmethod
     def fit(cls, module: nn.Module, demos: DemoSet, config: TrackingConfig, progress: bool) -> dict[str, Any]:
-        """Fill the tables of Eqs. (T1)-(T2) from the normalised ``demos`` (closed form, no iterations).
+        """Fill the tables of Eqs. (T1)-(T2) from the normalised ``demos`` (closed form, no iterations;
+        ``lfd.learners.tracking_reference.learn_reference``).
 
         History: ``loss`` = [mean squared distance of the demo samples from the reference at their
         phase, normalised units^2], ``spline_rmse`` (each demo from its own spline), ``spread``
         (mean squared distance of the demos from the reference: the floor of the reference's RMSE).
         """
         assert isinstance(module, TrackingModule)
-        m = config.table
-        phases = np.linspace(0.0, 1.0, m)
-        xs, dxs = phase_splines(demos, config.knots, phases)          # (N, M, d)
-        ref, dref = xs.mean(0), dxs.mean(0)
-        n, d = demos.n_demos, demos.dim
-        gain = np.zeros((m, d, d))
-        dgain = np.zeros((m, d, d))
-        prec = np.zeros((d, d))
-        if config.condition_start and n > 1:
-            dev, ddev = xs - ref, dxs - dref                           # (N, M, d)
-            c00 = dev[:, 0].T @ dev[:, 0] / (n - 1)
-            inv = prec = np.linalg.inv(c00 + config.start_noise ** 2 * np.eye(d))
-            gain = np.einsum("nmi,nj->mij", dev, dev[:, 0]) / (n - 1) @ inv
-            dgain = np.einsum("nmi,nj->mij", ddev, dev[:, 0]) / (n - 1) @ inv
-        if config.end_at_goal:
-            ref, dref, gain, dgain = _end_at_goal(phases, ref, dref, gain, dgain)
+        tables = learn_reference(demos, config.knots, config.table, config.condition_start, config.start_noise,
+                                 config.end_at_goal, config.align)
         with torch.no_grad():
-            module.ref.copy_(torch.tensor(ref))
-            module.dref.copy_(torch.tensor(dref))
-            module.gain.copy_(torch.tensor(gain))
-            module.dgain.copy_(torch.tensor(dgain))
-            module.start_precision.copy_(torch.tensor(prec))
+            module.ref.copy_(torch.tensor(tables.ref))
+            module.dref.copy_(torch.tensor(tables.dref))
+            module.gain.copy_(torch.tensor(tables.gain))
+            module.dgain.copy_(torch.tensor(tables.dgain))
+            module.start_precision.copy_(torch.tensor(tables.precision))
             module.duration.fill_(float(np.mean(demos.t[:, -1] - demos.t[:, 0])))
         # residuals at the demo samples
+        phases, d = np.linspace(0.0, 1.0, config.table), demos.dim
         s_all = (demos.t - demos.t[:, :1]) / (demos.t[:, -1:] - demos.t[:, :1])
-        r_at = np.stack([np.stack([np.interp(s, phases, ref[:, j]) for j in range(d)], -1) for s in s_all])
-        own = np.stack([np.stack([np.interp(s, phases, xi[:, j]) for j in range(d)], -1)
-                        for s, xi in zip(s_all, xs)])
+        r_at = np.stack([np.stack([np.interp(s, phases, tables.ref[:, j]) for j in range(d)], -1) for s in s_all])
+        own = np.stack([b(s) for b, s in zip(tables.splines, s_all)])
         loss = float(np.mean(np.sum((demos.x - r_at) ** 2, -1)))
         return {"loss": [loss], "spline_rmse": float(np.sqrt(np.mean(np.sum((demos.x - own) ** 2, -1)))),
                 "spread": loss, "iterations": 1, "interrupted": False, "stopped_nonfinite": False}
-
-
-def _end_at_goal(phases: np.ndarray, ref: np.ndarray, dref: np.ndarray, gain: np.ndarray, dgain: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Eq. (T1b): r <- r - w(s) r(1) and G <- (1 - w(s)) G with the quintic smoothstep w, 0 before
-    1 - END_BLEND and 1 at s = 1 (C2 in s), so that r(1 | x0) = 0, the goal in normalised units;
-    r' and G' follow by the product rule. phases (M,), ref and dref (M, d), gain and dgain (M, d, d)."""
-    u = np.clip((phases - (1.0 - END_BLEND)) / END_BLEND, 0.0, 1.0)
-    w = u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
-    dw = 30.0 * u * u * (1.0 - u) ** 2 / END_BLEND
-    end = ref[-1].copy()
-    ref = ref - w[:, None] * end
-    dref = dref - dw[:, None] * end
-    dgain = (1.0 - w)[:, None, None] * dgain - dw[:, None, None] * gain
-    gain = (1.0 - w)[:, None, None] * gain
-    return ref, dref, gain, dgain
 
 
 # ---------------------------------------------------------------- numerical check of Eq. (T5)

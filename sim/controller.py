@@ -310,14 +310,18 @@ class FieldController:
             if self._d3:
                 return np.array((a0 * dx + a1 * dy + a2 * dz, b0 * dx + b1 * dy + b2 * dz, c0 * dx + c1 * dy + c2 * dz))
             return np.array((a0 * dx + a1 * dy + a2 * dz, b0 * dx + b1 * dy + b2 * dz))
+        self._z = z = self.chart_point(p, self.measured_rotation())
+        return z
+
+    def chart_point(self, p: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """A pose task's chart point z (6,) of the tool pose p (3,), rot (3, 3), world (Eq. (P1)),
+        in one compiled call; nothing is remembered."""
+        z = np.empty(6)
         if self._pose_point is not None:
-            z = np.empty(6)
-            self._pose_point(p, self.measured_rotation(), self._prm, z)
-            self._z = z
+            self._pose_point(p, rot, self._prm, z)
             return z
         assert self._chart is not None
-        self._z = z = self._chart.point(self._At_s.dot(p - self._origin), self._rot_t.dot(self.measured_rotation()))
-        return z
+        return self._chart.point(self._At_s.dot(p - self._origin), self._rot_t.dot(rot))
 
     def measured_rotation(self) -> np.ndarray:
         """The tool rotation, shape (3, 3), world, of the last ``measure`` / ``measure_site``."""

@@ -415,7 +415,7 @@ class FieldTrackingTask(control.Task):
         q, qdot, p = self._read_q(), self._read_qdot(), self._site_pos.copy()
         px, py, pz = p.tolist()
         if self._pose:
-            x = self.placement.to_task(p, self._site_rot.copy())
+            x = self.controller.chart_point(p, self._site_rot)
         else:   # x = A^T (p - o) / s on Python floats (numpy's call overhead dominates at d <= 3)
             ox, oy, oz = self._origin_l
             dx, dy, dz = px - ox, py - oy, pz - oz

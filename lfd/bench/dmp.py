@@ -3,9 +3,10 @@
 A DMP is time-indexed, not an autonomous field x -> dx/dt, so the benchmarks run it thus
 (docs/benchmark.md):
 
-- Fit: the mean demo m_k = (1/K) sum_i x_i[k] of the K training demos (averaged per sample index;
-  a pose set's orientations by the chordal mean, ``lfd.pose.mean_quaternion``, sign-continuous), on
-  a uniform grid over the mean duration tau_0.
+- Fit: the mean demo m_k = (1/K) sum_i x_i[k] of the K training demos, each first moved to end at
+  the goal as every learner's are (``lfd.demos.relative``, Eqs. (R1)-(R2) of docs/equations.md)
+  (averaged per sample index; a pose set's orientations by the chordal mean,
+  ``lfd.pose.mean_quaternion``, sign-continuous), on a uniform grid over the mean duration tau_0.
 - Reproduce demo i: from its start at rest toward the goal, with tau = demo i's duration and step
   tau / (T - 1), so the T samples line up with the demo's in time; the velocity metrics take the
   rollout's yd. ``toward(end)`` moves the goal (the held-out split).
@@ -30,6 +31,7 @@ from movement_primitives.dmp import DMP, CartesianDMP
 
 from lfd.bench.model import TIMING_REPEATS, Model
 from lfd.demos import DemoSet
+from lfd.demos.relative import relative_to_ends
 from lfd.errors import ConfigError
 from lfd.pose import continuous, mean_quaternion
 
@@ -278,6 +280,7 @@ def fit_dmp(demos: DemoSet, **options: Any) -> DMPModel:
     """Fit one DMP to the mean of ``demos`` (module docstring)."""
     config = make_config(**options)
     t0 = time.perf_counter()
+    demos = relative_to_ends(demos)   # each demo relative to its own end (lfd.demos.relative)
     mean_x = demos.x.mean(axis=0)                                   # (T, d)
     duration = float(np.mean(demos.t[:, -1] - demos.t[:, 0]))
     grid = np.linspace(0.0, duration, demos.n_samples)
@@ -308,6 +311,7 @@ def fit_cartesian_dmp(demos: DemoSet, **options: Any) -> CartesianDMPModel:
     if demos.goal_q is None:
         raise ConfigError(f"dmp: {demos.name} holds no orientations; use fit_dmp")
     t0 = time.perf_counter()
+    demos = relative_to_ends(demos)   # each demo relative to its own end (lfd.demos.relative)
     mean_x, mean_q = mean_pose_demo(demos)
     duration = float(np.mean(demos.t[:, -1] - demos.t[:, 0]))
     grid = np.linspace(0.0, duration, demos.n_samples)

@@ -30,16 +30,46 @@ def add_model_and_demos(p: argparse.ArgumentParser) -> None:
     p.add_argument("--demos", required=True, metavar="SPEC", help=DEMOS_HELP)
 
 
-def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False) -> tuple[VelocityField, DemoSet]:
+GOAL_HELP = ("run the model toward this goal instead of its demos' mean end (the field's toward): task "
+             "coordinates, or a pose's x,y,z[,qw,qx,qy,qz]; write --goal=-1,2 when it starts with a minus")
+
+
+def goal_vector(text: str) -> tuple[float, ...]:
+    """argparse type of ``--goal``: comma-separated finite numbers (the field checks their count)."""
+    import argparse
+    import math
+
+    try:
+        v = tuple(float(s) for s in text.split(","))
+    except ValueError:
+        v = ()
+    if not v or not all(math.isfinite(c) for c in v):
+        raise argparse.ArgumentTypeError(f"expected finite numbers X,Y[,Z] or X,Y,Z,QW,QX,QY,QZ, got '{text[:60]}'")
+    return v
+
+
+def add_goal(p: argparse.ArgumentParser) -> None:
+    """The ``--goal`` option of a command that runs a model (``model_and_demos``' ``goal``)."""
+    p.add_argument("--goal", type=goal_vector, metavar="X,Y[,Z[,QW,QX,QY,QZ]]", help=GOAL_HELP)
+
+
+def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False,
+                    goal: tuple[float, ...] | None = None) -> tuple[VelocityField, DemoSet]:
     """Load a model file and a demo SPEC, and check that their dimensions agree. Demos of poses for a
     pose model come back as the model's chart points (``lfd.pose.chart_demos``, shape (N, T, 6): metres,
-    and metres per ``ROTATION_LENGTH`` of turn), which is what the model's field maps."""
+    and metres per ``ROTATION_LENGTH`` of turn), which is what the model's field maps. With ``goal``
+    the field is the model's run toward it (``VelocityField.toward``; a pose's chart moved to the
+    goal's orientation, in which the demos are then given); a goal of the wrong size is a ConfigError."""
+    import numpy as np
+
     from lfd.demos import load_demos
     from lfd.field import StateSpace
     from lfd.learners import load
     from lfd.pose import chart_demos
 
     field = load(model_path, allow_nonfinite)
+    if goal is not None:
+        field = field.toward(np.asarray(goal, dtype=np.float64))
     demos = load_demos(spec)
     say_notes(demos)
     poses = field.space is StateSpace.POSE

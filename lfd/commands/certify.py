@@ -69,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--samples must be between 1 and {MAX_SAMPLES}, got {args.samples}")
     if args.json:
         check_output(args.json, "--json", {"model file": args.model, "demo file": args.demos})
+    import numpy as np
+
     from lfd.certify import BOX_GROWTH, certify
     from lfd.io import write_json
     from lfd.learners import load
@@ -85,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         field = load(args.model, allow_nonfinite=True)
     if args.goal is not None:   # the model run toward the goal; a box from --demos moves with it
-        moved = field.toward(args.goal)
+        moved = field.toward(np.asarray(args.goal, dtype=np.float64))
         if lo is not None:
             lo, hi = lo + (moved.goal - field.goal), hi + (moved.goal - field.goal)
         field = moved

@@ -1,8 +1,9 @@
 """``lfd eval``: roll a model out from each demo's start and score it against the demos.
 
 Prints a table (one row per demo, then the mean) and, with --json, writes the numbers
-atomically: {"model", "learner", "demos", "dim", "n_demos", "dtw_step", "metrics",
+atomically: {"model", "learner", "demos", "goal", "dim", "n_demos", "dtw_step", "metrics",
 "per_demo": [{metric: value}], "mean": {metric: value}}; a non-finite value is written as null.
+With --goal the model runs toward that goal (``goal`` in the JSON; null: the demos' mean end).
 """
 
 from __future__ import annotations
@@ -21,11 +22,12 @@ UNITS = ("units: the demos' length unit U (cosine_error: none, in [0, 2]); dtw i
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.commands import add_model_and_demos
+    from lfd.commands import add_goal, add_model_and_demos
 
     p = subparsers.add_parser("eval", help="score a model's rollouts against demos",
                               description=__doc__.splitlines()[0])
     add_model_and_demos(p)
+    add_goal(p)
     p.add_argument("--json", metavar="PATH", help="write the metrics to this JSON file")
     p.add_argument("--dtw-step", type=int, default=1, metavar="K",
                    help="DTW on every K-th sample (the LASA protocol uses 4; default 1)")
@@ -44,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--dtw-step must be >= 1, got {args.dtw_step}")
     if args.json:
         check_output(args.json, "--json", {"model file": args.model, "demo file": args.demos})
-    field, demos = model_and_demos(args.model, args.demos)
+    field, demos = model_and_demos(args.model, args.demos, goal=args.goal)
     if demos.n_samples > MAX_EVAL_SAMPLES:
         raise DemoError(f"{demos.name}: {demos.n_samples} samples per demo, lfd eval rolls out at most "
                         f"{MAX_EVAL_SAMPLES}; resample the demos")
@@ -64,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
               f"{cast('PoseChart', field.chart).length:g} m")
     if args.json:
         report = {"model": str(args.model), "learner": field.learner, "demos": demos.name,
+                  "goal": None if args.goal is None else list(args.goal),
                   "dim": demos.dim, "n_demos": demos.n_demos, "dtw_step": dtw_step,
                   "metrics": names, "per_demo": result["per_demo"],
                   "mean": result["mean"]}

@@ -11,6 +11,7 @@ from typing import Any
 import torch
 
 from lfd.demos import DemoSet
+from lfd.demos.relative import relative_to_ends
 from lfd.errors import ConfigError, ModelError, TrainingError
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
@@ -48,6 +49,10 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
           **options: Any) -> VelocityField:
     """Fit a learner to demos and return its field. The same seed gives the same model.
 
+    Every demo is first moved to end at the demos' mean end (``lfd.demos.relative``, Eqs. (R1)-(R2)
+    of docs/equations.md): the field learns each demo relative to its own end, its goal is the mean
+    end, and ``field.toward(goal)`` runs it toward any other.
+
     ``seed`` is an integer in [0, 2^63 - 1]; a model of more than MAX_PARAMETERS parameters is
     refused before anything is allocated (ConfigError). A training that never reaches a finite
     loss, or ends with non-finite weights, raises TrainingError. Ctrl-C stops the learner's fit
@@ -62,6 +67,7 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
     if n_params is not None and n_params > MAX_PARAMETERS:
         raise ConfigError(f"{learner}: the model would have {n_params:,} parameters, more than the "
                           f"limit of {MAX_PARAMETERS:,}; use smaller layers")
+    demos = relative_to_ends(demos)   # each demo relative to its own end, Eqs. (R1)-(R2): the goal is an input
     chart = None
     if demos.has_orientation:   # poses: the same learner on the chart's R^6 (lfd.pose, Eq. (P1))
         from lfd.pose import PoseChart, chart_demos
@@ -83,8 +89,8 @@ def train(learner: str, demos: DemoSet, seed: int = 0, progress: bool = False,
 
 def effective_options(learner: str, demos: DemoSet, options: dict[str, Any]) -> dict[str, Any]:
     """The options ``train`` fits with: ``options``, and for poses the tracking learner's
-    ``end_at_goal`` (poses end at different orientations; the reference must end at the goal pose,
-    Eq. (T1b)) unless given."""
+    ``end_at_goal`` (the reference ends at the goal pose exactly, Eq. (T1b), not only to the weight
+    that pins each demo's spline there) unless given."""
     if demos.has_orientation and learner == "tracking":
         return {"end_at_goal": True, **options}
     return dict(options)

@@ -13,7 +13,9 @@ that closes the gaps ("not proven" where it is too loose, "not certified" where 
 fails, a trajectory from the box diverges or anything is NaN or inf). A field with a phase is
 certified by its own stated property. Whatever the check, a field whose autonomous view has a
 spurious attractor, a closed orbit or starts that escape the box (``lfd.equilibria``) is "not
-certified". The reasoning in full: docs/equations.md, Eqs. (K1)-(K2) and (E1)-(E4).
+certified". A field with a stated Lyapunov function (the stable NODE) is certified by it instead
+(``lfd.stability``: its analytic conditions, the decrease sampled on the box and far out). The
+reasoning in full: docs/equations.md, Eqs. (K1)-(K2), (E1)-(E4) and (L1)-(L3).
 
 References
 ----------
@@ -34,10 +36,11 @@ import numpy as np
 import torch
 from torch.func import jvp
 
-from lfd.equilibria import EquilibriumReport, find_equilibria
+from lfd.equilibria import EquilibriumReport, check_box, find_equilibria
 from lfd.errors import ConfigError
 from lfd.field import FieldKind, StateSpace, VelocityField, by_kind
 from lfd.pose_contraction import PAIRS, check_pose_contraction
+from lfd.stability import ROUND_OFF, check_lyapunov
 from lfd.threads import torch_threads
 
 DEFAULT_SAMPLES = 20_000
@@ -81,6 +84,10 @@ class Certificate:
         numerically positive definite
     equilibria : ``lfd.equilibria.find_equilibria`` on the box (None when not searched); a spurious
         attractor, a closed orbit or an escaping start there makes the verdict "not certified"
+    lyapunov : for a field with a stated Lyapunov function, ``lfd.stability.check_lyapunov``; then
+        ``metric`` is "lyapunov", ``rate`` the decay rate of Eq. (L3), ``worst`` the largest sampled
+        dV/dt / (alpha(V) V) against ``bound`` -1, ``overshoot`` s_hi / s_lo and the metric
+        eigenvalues s_lo^2, s_hi^2 (V's bounds over |x_n|^2)
     """
 
     learner: str
@@ -116,6 +123,7 @@ class Certificate:
     elapsed_s: float
     pose: dict[str, Any] | None = None
     equilibria: EquilibriumReport | None = None
+    lyapunov: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
@@ -124,6 +132,8 @@ class Certificate:
 
     def summary(self) -> str:
         """Human-readable lines for the command line."""
+        if self.lyapunov is not None:
+            return self._lyapunov_summary()
         pt = ", ".join(f"{v:.4g}" for v in self.argmax)
         lines = [f"{self.verdict.upper()}: contraction rate {self.rate:g}/s in the {self.metric} metric "
                  f"({self.learner} model)",
@@ -156,6 +166,26 @@ class Certificate:
                          f"{state} (worst ratio {p['worst_ratio']:.3g}, to the goal {p['goal_worst_ratio']:.3g}); "
                          f"slowest geodesic decay {p['geodesic_decay_rate']:.3g}/s; pairs across the cut locus "
                          f"separate up to {p['cut_locus_growth']:.3g}x before converging")
+        if self.equilibria is not None:
+            lines.extend("  " + line for line in self.equilibria.summary().splitlines())
+        return "\n".join(lines)
+
+
+    def _lyapunov_summary(self) -> str:
+        c = cast(dict[str, Any], self.lyapunov)
+        pt = ", ".join(f"{v:.4g}" for v in self.argmax)
+        lines = [f"{self.verdict.upper()}: globally exponentially stable at the goal, rate {self.rate:.4g}/s, "
+                 f"Lyapunov function of Eq. (L1) ({self.learner} model)",
+                 f"  proof: {self.proof}",
+                 f"  analytic, for all x: s_lo = {c['s_lo']:.4g}, s_hi = {c['s_hi']:.4g}, gamma = {c['gain']:.4g}, "
+                 f"goal rate {c['goal_rate']:.4g}/s: |x(t) - goal| <= {c['overshoot']:.4g} |x(0) - goal| "
+                 f"exp(-{self.rate:.4g} t) (Eq. (L3)); |fhat(goal)| = {c['nominal_at_goal']:.3g}",
+                 f"  sampled: worst dV/dt / (alpha(V) V) {self.worst:.6g} vs -1 at ({pt}); "
+                 f"{c['n_decrease_fails']} decrease and {c['n_bound_fails']} bound failures in {self.n_points} "
+                 f"points (the box and {c['far_radius']:.3g} units out); {self.n_left_box} of {self.n_starts} "
+                 f"starts on the box {_fmt_box(self.box)} left it; {self.elapsed_s:.2f} s"]
+        if self.n_invalid:
+            lines.append(f"  {self.n_invalid} points where V or its decrease is not finite")
         if self.equilibria is not None:
             lines.extend("  " + line for line in self.equilibria.summary().splitlines())
         return "\n".join(lines)
@@ -306,19 +336,14 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
         if box is None:
             raise ConfigError("no box to certify in: the model's history has no demo box; give --box or --demos")
         lo, hi = box
-    lo, hi = np.asarray(lo, dtype=np.float64).reshape(-1), np.asarray(hi, dtype=np.float64).reshape(-1)
+    lo, hi = check_box(field, lo, hi)
     d = field.dim
-    if lo.shape != (d,) or hi.shape != (d,):
-        raise ConfigError(f"the box must have {d} lower and {d} upper bounds for this "
-                          f"{d}-D model, got {lo.size} and {hi.size}")
-    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (hi > lo).all()):
-        raise ConfigError(f"the box must be finite with max > min on every axis, got {lo.tolist()} .. {hi.tolist()}")
     if isinstance(samples, bool) or not isinstance(samples, int) or not min_samples(d) <= samples <= MAX_SAMPLES:
         per = f" ({MIN_PER_AXIS} per axis)" if d <= GRID_MAX_DIM else ""
         raise ConfigError(f"samples must be an integer from {min_samples(d)}{per} "
                           f"to {MAX_SAMPLES}, got {samples!r}")
     if rate is None:
-        rate = IDENTITY_RATE if field.rate is None else float(field.rate)
+        rate = IDENTITY_RATE if field.rate is None else float(field.rate)     # a stated Lyapunov function: its own
     if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 0 < rate <= 1e6):
         raise ConfigError(f"rate must be a positive number up to 1e6 (1/s), got {rate!r}")
     if not (math.isfinite(tolerance) and tolerance >= 0):
@@ -329,7 +354,10 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
 
     with warnings.catch_warnings():     # torch.func's first use warns that torch.jit.script is deprecated
         warnings.simplefilter("ignore", DeprecationWarning)
-        cert = by_kind(field, _CERTIFIERS)(field, lo, hi, samples, float(rate), tolerance)
+        if field.stability_constants() is not None:
+            cert = _certify_lyapunov(field, lo, hi, samples)
+        else:
+            cert = by_kind(field, _CERTIFIERS)(field, lo, hi, samples, float(rate), tolerance)
     if field.space is StateSpace.POSE:
         pose = check_pose_contraction(field, PAIRS if pose_pairs is None else int(pose_pairs))
         cert = replace(cert, pose=pose)
@@ -401,6 +429,38 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
         n_points=int(len(pts)), per_axis=per_axis, n_invalid=invalid, n_starts=n_starts, n_left_box=n_left,
         box=[lo.tolist(), hi.tolist()], checked_box=[clo.tolist(), chi.tolist()],
         elapsed_s=time.perf_counter() - t0)
+
+
+def _certify_lyapunov(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int) -> Certificate:
+    """``certify`` of a field with a stated Lyapunov function (``lfd.stability``): certified when its
+    analytic conditions hold and the sampled decrease confirms them on the box and far out."""
+    t0 = time.perf_counter()
+    with torch_threads(1):
+        pts = grid(lo, hi, samples)
+        check = check_lyapunov(field, pts)
+    assert check is not None
+    rate = float(check["rate"])
+    n_starts, n_left, clo, chi, _ = escaping_starts(field, lo, hi, rate)
+    if not check["analytic_holds"]:
+        verdict, proof = "not certified", "an analytic condition of Eqs. (L1)-(L2) fails (see the constants)"
+    elif not check["holds"]:
+        verdict, proof = "not certified", ("a sampled point breaks dV/dt <= -alpha(V) V or V's bounds, or is not "
+                                           "finite (a counterexample)")
+    else:
+        verdict, proof = "certified", ("structural (Eqs. (L1)-(L3)): V positive definite and radially unbounded, "
+                                       "dV/dt <= -alpha V on all of R^d; the samples confirm the implementation")
+    d = field.dim
+    return Certificate(
+        learner=field.learner, metric="lyapunov", rate=rate, bound=-1.0, verdict=verdict,
+        certified=verdict == "certified", proof=proof, worst=check["worst_ratio"],
+        margin=-1.0 - check["worst_ratio"], slack=ROUND_OFF, tolerance=0.0, argmax=check["argmax"],
+        sampled_metric_min_eig=check["s_lo"] ** 2, sampled_metric_max_eig=check["s_hi"] ** 2,
+        metric_bound_a=None, metric_bound_b=None, condition_bound=None, overshoot=check["overshoot"],
+        lipschitz_bound=None, rk4_max_step=None, cell_lipschitz=None, cell_radius=math.inf, worst_over_box=None,
+        n_points=check["n_points"], per_axis=max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / d) - 1e-9))
+        if d <= GRID_MAX_DIM else 0, n_invalid=check["n_invalid"], n_starts=n_starts, n_left_box=n_left,
+        box=[lo.tolist(), hi.tolist()], checked_box=[clo.tolist(), chi.tolist()],
+        elapsed_s=time.perf_counter() - t0, lyapunov=check)
 
 
 def _scan(field: VelocityField, xn_all: torch.Tensor, bound: float,

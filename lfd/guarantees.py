@@ -2,11 +2,13 @@
 ``lfd.pose_contraction`` to check: ``Guarantees``, the defaults of every ``lfd.field.VelocityField``
 (nothing stated). A learner that states more overrides them: ``lfd.field.ContractingField`` (a rate,
 metric bounds and a Lipschitz bound), the contraction learner's field (its metric, Eq. (C1), and its
-flow in closed form, Eq. (C4)) and the NODE's (a bound of Lip(J_f) from its weights)."""
+flow in closed form, Eq. (C4)), the NODE's (a bound of Lip(J_f) from its weights) and the stable
+NODE's (a Lyapunov function and its constants, Eqs. (L1)-(L3))."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from torch import Tensor
@@ -40,6 +42,16 @@ class Guarantees:
 
     def jacobian_lipschitz_bound(self) -> float | None:
         """An upper bound of Lip(J_f) from the weights; None: none known."""
+        return None
+
+    def stability_constants(self) -> dict[str, Any] | None:
+        """The analytic constants of a Lyapunov function the field is built to decrease (keys ``holds``,
+        ``rate``, ``alpha``, ``s_lo``, ``s_hi``, ``overshoot``; ``lfd.stability`` checks them); None: none."""
+        return None
+
+    def lyapunov(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """V(x), dV/dt along the field and the rate alpha(V) with dV/dt <= -alpha(V) V stated, each of
+        shape x.shape[:-1], at x of shape (..., d) in user units; None: no Lyapunov function stated."""
         return None
 
     def closed_form_rollout(self, x0: np.ndarray, t: np.ndarray) -> np.ndarray | None:

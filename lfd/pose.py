@@ -27,6 +27,8 @@ are imported on first use. Conversions, the mean and the geodesic angle are ``lf
 
 from __future__ import annotations
 
+import functools
+import importlib
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -48,17 +50,10 @@ __all__ = ["ROTATION_LENGTH", "UNIT_TOLERANCE", "PoseChart", "chart_demos", "con
            "matrix_quaternions", "mean_quaternion", "quaternion_matrices"]
 
 
-_KERNELS: Any = None
-
-
+@functools.cache
 def _kernels() -> Any:
     """``lfd.pose_kernel``, imported on first use (it imports numba: ``import lfd.pose`` stays cheap)."""
-    global _KERNELS
-    if _KERNELS is None:
-        from lfd import pose_kernel
-
-        _KERNELS = pose_kernel
-    return _KERNELS
+    return importlib.import_module("lfd.pose_kernel")
 
 
 def _pin() -> Any:

@@ -315,12 +315,10 @@ def guard_check(fn: int, model: int, data: int, xpos: np.ndarray, xmat: np.ndarr
             state[sl + 2 * skipped + 1] = lb
             skipped += 1
             continue
-        d, binds = _exact(fn, model, data, p, ints, floats, state, xpos, xmat, cdof, subtree_com, qdot, addr, sf, sc,
-                          sp, sd)
+        best, which, binds = _closer(_exact(fn, model, data, p, ints, floats, state, xpos, xmat, cdof, subtree_com,
+                                            qdot, addr, sf, sc, sp, sd), p, best, which)
         if binds:
             return 1
-        if d < best:
-            best, which = d, p
     first = state[2]
     for s in range(1, skipped):   # the skipped pairs by their bound, lowest first (insertion sort)
         p, lb = state[sl + 2 * s], state[sl + 2 * s + 1]
@@ -334,14 +332,20 @@ def guard_check(fn: int, model: int, data: int, xpos: np.ndarray, xmat: np.ndarr
         if lb >= best:
             break   # the rest are no lower
         p = int(state[sl + 2 * s])
-        d, binds = _exact(fn, model, data, p, ints, floats, state, xpos, xmat, cdof, subtree_com, qdot, addr, sf, sc,
-                          sp, sd)
+        best, which, binds = _closer(_exact(fn, model, data, p, ints, floats, state, xpos, xmat, cdof, subtree_com,
+                                            qdot, addr, sf, sc, sp, sd), p, best, which)
         if binds:
             return 1
-        if d < best:
-            best, which = d, p
     state[0], state[1], state[3] = best, which, first
     return 0
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _closer(measured: tuple[float, bool], p: int, best: float,
+            which: int) -> tuple[float, int, bool]:  # pragma: no cover
+    """(best, which, binds) after measuring pair p: its distance replaces the best if smaller."""
+    d, binds = measured
+    return (d, p, binds) if d < best else (best, which, binds)
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True)

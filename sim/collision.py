@@ -19,6 +19,7 @@ high number of degrees of freedom", IEEE ICRA 1987, 1152-1159.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -323,15 +324,10 @@ class ArmClearance:
         return self._A[:count].copy(), spec.rate * (dd - spec.safety_m)
 
 
-_KERNELS: tuple[Any, Any, Any, int] | None = None
-
-
+@functools.cache
 def _kernels() -> tuple[Any, Any, Any, int]:
     """(broadphase, pair_rows, guard_check, the address of ``mj_geomDistance``) of
     ``sim._collision_kernel`` (numba is imported on first use)."""
-    global _KERNELS
-    if _KERNELS is None:
-        from sim._collision_kernel import GEOM_DISTANCE, broadphase, guard_check, pair_rows
+    from sim._collision_kernel import GEOM_DISTANCE, broadphase, guard_check, pair_rows
 
-        _KERNELS = (broadphase, pair_rows, guard_check, GEOM_DISTANCE)
-    return _KERNELS
+    return broadphase, pair_rows, guard_check, GEOM_DISTANCE

@@ -17,6 +17,8 @@ a singularity or a joint limit, for a tool orientation error near pi on a positi
 
 from __future__ import annotations
 
+import functools
+import importlib
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -37,17 +39,10 @@ from sim.placement import Placement
 DYNAMICS: tuple[str, ...] = ("mujoco", "pinocchio")
 _mul_m, _add, _jac_site = mujoco.mj_mulM, np.add, mujoco.mj_jacSite   # bound once: called every control step
 
-_KERNELS: Any = None
-
-
+@functools.cache
 def _get_kernels() -> Any:
     """The compiled control step and chart point (``sim._control_kernel``; numba is imported on first use)."""
-    global _KERNELS
-    if _KERNELS is None:
-        from sim import _control_kernel
-
-        _KERNELS = _control_kernel
-    return _KERNELS
+    return importlib.import_module("sim._control_kernel")
 
 
 @dataclass(frozen=True)

@@ -139,6 +139,11 @@ class Experiment:
                                           demo_index=demo_index, obstacles=obstacles, time_factor=time_factor,
                                           settle_s=settle_s)
         setup = self.setup
+        # the setup's parts, by name (``sim.setup.RunSetup``): the scene's robot, the demos as given and
+        # as task points, the placement, the run's start and length, the obstacles
+        self.robot, self.demos, self.task_demos, self.placement = setup.robot, setup.demos, setup.task_demos, \
+            setup.placement
+        self.start, self.duration_s, self.obstacles = setup.start, setup.duration_s, setup.obstacles
         if isinstance(clearance, str):
             if clearance != "auto":
                 raise SimError(f"clearance must be a Clearance, None or 'auto', not '{clearance}'")
@@ -150,59 +155,6 @@ class Experiment:
         self.base = base_position(setup.robot)
         self.fps = float(fps)   # the rollouts record the full qpos at this video frame rate
         self._unperturbed: dict[tuple, tuple[Field, np.ndarray, np.ndarray | None]] = {}
-
-    # the setup's parts, by name (``sim.setup.RunSetup``)
-    @property
-    def robot(self) -> RobotModel:
-        """The scene's robot (with the obstacles)."""
-        return self.setup.robot
-
-    @property
-    def demos(self) -> DemoSet:
-        """The demonstrations as given."""
-        return self.setup.demos
-
-    @property
-    def task_demos(self) -> DemoSet:
-        """The demos as task points (chart points for poses), shape (N, T, d)."""
-        return self.setup.task_demos
-
-    @property
-    def placement(self) -> Placement:
-        return self.setup.placement
-
-    @property
-    def obstacles(self) -> tuple[Obstacle, ...]:
-        return self.setup.obstacles
-
-    @property
-    def start(self) -> np.ndarray:
-        """The run's start, shape (d,), task units."""
-        return self.setup.start
-
-    @property
-    def duration_s(self) -> float:
-        return self.setup.duration_s
-
-    @property
-    def demo_index(self) -> int:
-        return self.setup.demo_index
-
-    @property
-    def demo_t(self) -> np.ndarray:
-        return self.setup.demo_t
-
-    @property
-    def demo_world(self) -> np.ndarray:
-        return self.setup.demo_world
-
-    @property
-    def demo_rotations(self) -> np.ndarray | None:
-        return self.setup.demo_rotations
-
-    @property
-    def rotation_ref(self) -> np.ndarray | None:
-        return self.setup.rotation_ref
 
     def environment(self, perturbations: Sequence[Perturbation] = (), goal: np.ndarray | None = None
                     ) -> FieldEnvironment:
@@ -282,12 +234,12 @@ class Experiment:
             unperturbed = cached[1]
         ref_task = self.reference_task(field, ro)
         ref = self.placement.to_world(ref_task)
-        metrics: dict[str, Any] = run_metrics(ro.t, ro.ee, ref, ro.goal_world, self.demo_t, self.demo_world,
+        metrics: dict[str, Any] = run_metrics(ro.t, ro.ee, ref, ro.goal_world, self.setup.demo_t, self.setup.demo_world,
                                               unperturbed, ro.push_window_s)
-        if self.placement.pose and ro.ee_rot is not None and self.demo_rotations is not None:
+        if self.placement.pose and ro.ee_rot is not None and self.setup.demo_rotations is not None:
             metrics.update(orientation_metrics(ro.t, ro.ee_rot, self.placement.rotation_to_world(ref_task),
-                                               self.placement.rotation_to_world(ro.goal_task), self.demo_t,
-                                               self.demo_rotations))
+                                               self.placement.rotation_to_world(ro.goal_task), self.setup.demo_t,
+                                               self.setup.demo_rotations))
         metrics.update(joint_limit_violations=ro.joint_limit_violations, ik_limit_hits=ro.ik_limit_hits,
                        realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us)
         if ro.phase is not None:
@@ -351,9 +303,9 @@ class Experiment:
         normal = None if self.placement.dim != 2 else self.placement.normal
         names = titles or [f"{r.learner} / {r.scenario}" for r in results]
         panels = [Panel(r.trace, r.reference, name, r.goal_path) for r, name in zip(results, names)]
-        return render_panels(self.physics.model.ptr, panels, self.demo_world, path, self.base,
+        return render_panels(self.physics.model.ptr, panels, self.setup.demo_world, path, self.base,
                              self.robot.mj_qpos_adr, normal, width, height, fps, camera, progress=progress,
-                             demo_rotations=self.demo_rotations)
+                             demo_rotations=self.setup.demo_rotations)
 
     def describe(self) -> dict[str, Any]:
         """The experiment's settings, for the metrics JSON."""
@@ -361,5 +313,5 @@ class Experiment:
         opts = dict(self.options, gains=dataclasses.asdict(self.options["gains"]),
                     clearance=None if clearance is None else dataclasses.asdict(clearance))
         return {"robot": self.robot.name, "ee_frame": self.robot.ee_frame, "demos": self.demos.name,
-                "demo_index": self.demo_index, "duration_s": self.duration_s,
+                "demo_index": self.setup.demo_index, "duration_s": self.duration_s,
                 "placement": self.placement.to_dict(), "actuation": self.robot.actuation, **opts}

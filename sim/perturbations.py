@@ -74,18 +74,24 @@ class _Directed(Perturbation):
 
 
 @dataclass(frozen=True)
-class StartOffset(_Directed):
-    """Start ``distance_m`` (m) from the demonstration's start, along ``direction`` (world, shape (3,))
-    or a direction drawn from ``seed``; for a pose task also turned by ``angle_deg`` about a world axis
-    drawn from ``seed`` (``turn_axis``)."""
+class _Moved(_Directed):
+    """A point moved ``distance_m`` (m) along ``direction`` (world, shape (3,)) or a direction drawn
+    from ``seed``; for a pose task also turned by ``angle_deg`` about a world axis drawn from ``seed``
+    (``turn_axis``)."""
 
     distance_m: float = 0.02
     angle_deg: float = field(default=0.0, kw_only=True)
-    kind = "offset"
 
     def turn_world(self) -> np.ndarray:
-        """The start's turn theta u, shape (3,), world, rad (zero without ``angle_deg``)."""
+        """The turn theta u, shape (3,), world, rad (zero without ``angle_deg``)."""
         return np.radians(self.angle_deg) * turn_axis(self.seed)
+
+
+@dataclass(frozen=True)
+class StartOffset(_Moved):
+    """Start away from the demonstration's start (``_Moved``)."""
+
+    kind = "offset"
 
     def offset_world(self, placement: Placement) -> np.ndarray:
         """The start displacement dp, shape (3,), in metres."""
@@ -110,17 +116,10 @@ class Push(_Directed):
 
 
 @dataclass(frozen=True)
-class GoalShift(_Directed):
-    """Move the goal by ``distance_m`` (m) along ``direction`` (world, shape (3,)) or one drawn from
-    ``seed``; for a pose task also turn it by ``angle_deg`` (module docstring)."""
+class GoalShift(_Moved):
+    """Move (and, for a pose task, turn) the goal (``_Moved``; module docstring)."""
 
-    distance_m: float = 0.02
-    angle_deg: float = field(default=0.0, kw_only=True)
     kind = "goal"
-
-    def turn_world(self) -> np.ndarray:
-        """The goal's turn theta u, shape (3,), world, rad (zero without ``angle_deg``)."""
-        return np.radians(self.angle_deg) * turn_axis(self.seed)
 
     def offset_world(self, placement: Placement) -> np.ndarray:
         """The goal displacement dg, shape (3,), in metres (projected on the task plane when d = 2)."""

@@ -114,7 +114,7 @@ def check_goal_motion(motion: GoalMotion, exp: Experiment, obstacles: list[Obsta
         if float(np.min(o.gamma(goals))) < MIN_GOAL_GAMMA:
             raise ConfigError(f"{flag}: the moving goal comes inside or too close to the {o.describe()}")
     try:
-        exp.placement.check_reachable(exp.robot, goals, rotation=exp.rotation_ref)
+        exp.placement.check_reachable(exp.robot, goals, rotation=exp.setup.rotation_ref)
     except PlacementError as e:
         raise ConfigError(f"{flag}: the moving goal leaves the arm's reach ({e})") from None
 

@@ -218,7 +218,7 @@ def measure_control(robot: RobotModel, demos: DemoSet, learned: VelocityField,
         exp = Experiment(robot, demos, placement=placement, obstacles=spheres, gains=Gains(lead_s=OBSTACLE_LEAD_S),
                          clearance=Clearance())
         setups.append(_Setup(count, True, exp, avoid(learned, grown(spheres, margin))))
-    points = demos.x[bare_exp.demo_index]
+    points = demos.x[bare_exp.setup.demo_index]
     for s in setups:
         s.exp.simulate(s.fn)   # warm-up: compiled kernels, caches
     for _ in range(repeats):

@@ -256,15 +256,6 @@ class FieldTrackingTask(control.Task):
         self._runner = None if self.field is None else self.field.runner(self.start_task - self._shift,
                                                                           self.control_dt)
 
-    @property
-    def step_index(self) -> int:
-        """The index of the next control step (``ControlStep.k``)."""
-        return self.step.k
-
-    @step_index.setter
-    def step_index(self, k: int) -> None:
-        self.step.k = int(k)
-
     def before_step(self, action: np.ndarray, physics: ArmPhysics) -> None:
         """Check the action and write the commands; with ``FieldController.split`` (MuJoCo's
         computed torque, whole-arm clearance) it first runs ``mj_step1`` for M(q), the bias forces
@@ -485,7 +476,7 @@ class FieldTrackingTask(control.Task):
         sim_state = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_INTEGRATION))
         mujoco.mj_getState(m, d, sim_state, mujoco.mjtState.mjSTATE_INTEGRATION)
         # the controller's only memory: qdot_ref of the last step (computed torque's qddot_ref)
-        return np.concatenate([sim_state, self.controller._qdot_prev, [float(self.step_index)]])
+        return np.concatenate([sim_state, self.controller._qdot_prev, [float(self.step.k)]])
 
     def set_state(self, physics: ArmPhysics, state: np.ndarray) -> None:
         """Restore a ``get_state`` vector; raises ``SimError`` if its size does not match."""
@@ -498,7 +489,7 @@ class FieldTrackingTask(control.Task):
         mujoco.mj_setState(m, d, state[:size], mujoco.mjtState.mjSTATE_INTEGRATION)
         mujoco.mj_forward(m, d)
         self.controller._qdot_prev = state[size:size + n].copy()
-        self.step_index = int(round(state[-1]))
+        self.step.k = int(round(state[-1]))
 
     def set_mocap_path(self, path: np.ndarray) -> None:
         """Move the mocap bodies (moving obstacles) along ``path``, shape (K+1, nmocap, 3), m, one row

@@ -32,6 +32,18 @@ def spiral() -> lfd.DemoSet:
     return lfd.spiral()
 
 
+@pytest.fixture(scope="module")
+def model_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """A fresh model cache (``LFD_CACHE_DIR``) for the module's jobs, the old setting restored after."""
+    old = os.environ.get("LFD_CACHE_DIR")
+    os.environ["LFD_CACHE_DIR"] = str(tmp_path_factory.mktemp("models"))
+    yield os.environ["LFD_CACHE_DIR"]
+    if old is None:
+        os.environ.pop("LFD_CACHE_DIR", None)
+    else:
+        os.environ["LFD_CACHE_DIR"] = old
+
+
 @pytest.fixture
 def make_linear_field() -> Callable[..., VelocityField]:
     """The ``linear_field`` builder, for tests that need fields of their own."""

@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 #: keys of wall-clock numbers, which differ from run to run
-TIMINGS = {"cell_s", "elapsed_s", "train_time_s", "train_cpu_s", "step_time_us", "run_s", "run_cpu_s", "control_step_us",
-           "realtime_factor"}
+TIMINGS = {"cell_s", "elapsed_s", "train_time_s", "train_cpu_s", "step_time_us", "run_s", "run_cpu_s",
+           "control_step_us", "realtime_factor"}
 #: keys of how a run went rather than what it computed: its tries and the node (host) that ran it
 HOST_FIELDS = {"attempts", "node"}
 

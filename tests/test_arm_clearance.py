@@ -51,7 +51,7 @@ def scene():
     target = tool + side / np.linalg.norm(side) * (exp.placement.scale * ob.radius + 0.035)
     from robots import solve_pose_ik
 
-    q, err, _ = solve_pose_ik(robot, target, exp.rotation_ref, q0=robot.q_home)
+    q, err, _ = solve_pose_ik(robot, target, exp.setup.rotation_ref, q0=robot.q_home)
     assert err < 1e-4
     data.qpos[robot.mj_qpos_adr] = q
     mujoco.mj_forward(model, data)
@@ -102,7 +102,7 @@ def test_check_decides_as_the_rows_and_gives_their_minimum_on_a_path_into_the_sp
     ends = []
     for gap in (0.06, -0.03):    # the tool point this far beyond the fingers' reach (hand margin) from the surface
         target = centre + side * (exp.placement.scale * ob.radius + hand_margin_m(robot) + gap)
-        q, err, _ = solve_pose_ik(robot, target, exp.rotation_ref, q0=robot.q_home)
+        q, err, _ = solve_pose_ik(robot, target, exp.setup.rotation_ref, q0=robot.q_home)
         assert err < 1e-4
         ends.append(q)
     path = np.linspace(ends[0], ends[1], 240)
@@ -183,7 +183,7 @@ def beside_the_goal(demos: lfd.DemoSet, gap_m: float = 0.015) -> Sphere:
     """A sphere of 6 % of the extent whose surface is ``gap_m`` from the goal, along the fingers'
     opening (the tool's y axis): the tool point fits there, the fingers (28 mm from it) do not."""
     exp = sim.Experiment(load_robot("panda"), demos, clearance=None)
-    fingers = exp.placement.axes.T @ exp.rotation_ref[:, 1]               # task axes
+    fingers = exp.placement.axes.T @ exp.setup.rotation_ref[:, 1]               # task axes
     r = 0.06 * demos.extent
     return Sphere(demos.goal + fingers / np.linalg.norm(fingers) * (r + gap_m / exp.placement.scale), r)
 
@@ -270,14 +270,14 @@ def test_runs_that_end_short_with_nothing_in_the_way_say_so(tmp_path, monkeypatc
     metrics, one ``short:`` line on stderr. The blocked run of the test above is not short."""
     from known_fields import sink_field
 
-    import lfd.cache
+    import sim.pipeline as pipeline
     from lfd.demos import save_file
 
     demos = users_spiral()
     save_file(demos, tmp_path / "spiral3.npz")
     ob = Sphere(demos.goal + 0.8 * demos.extent, 0.03 * demos.extent)
     slow = sink_field(demos, "contraction", a=0.01)
-    monkeypatch.setattr(lfd.cache, "cached_field", lambda name, *a, **k: (slow, tmp_path / "slow.pt", False))
+    monkeypatch.setattr(pipeline, "cached_field", lambda name, *a, **k: (slow, tmp_path / "slow.pt", False))
     job = sim.ArmJob(robot="panda", learners=("contraction",), demos=str(tmp_path / "spiral3.npz"),
                      scenarios=("none",), videos=False, plots=False, out=str(tmp_path / "out"),
                      obstacles=(f"sphere:{float(ob.center[0])!r},{float(ob.center[1])!r},{ob.radius!r}",), quiet=True)

@@ -19,7 +19,8 @@ pytestmark = [pytest.mark.usefixtures("one_thread"),
               pytest.mark.filterwarnings(r"ignore:`torch\.jit\.load` is deprecated:DeprecationWarning")]
 
 TOL = 1e-6     # the export reproduces field(x) to 1e-6 (user units/s)
-LEARNERS = {"node": {"iterations": 10, "hidden": (16, 16)}, "contraction": {"iterations": 5}}
+LEARNERS = {"node": {"iterations": 10, "hidden": (16, 16)}, "contraction": {"iterations": 5},
+            "stable_node": {"iterations": 10, "hidden": (16, 16), "lyapunov_iterations": 5}}
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +52,7 @@ def export(model: Path, fmt: str, out: Path, capsys: pytest.CaptureFixture[str],
     return code, capsys.readouterr().err
 
 
-@pytest.mark.parametrize("learner", ["node", "contraction", "contraction3d"])
+@pytest.mark.parametrize("learner", ["node", "contraction", "contraction3d", "stable_node"])
 def test_torchscript_reproduces_the_field(learner: str, models, tmp_path: Path, capsys) -> None:
     path, field = models[learner]
     code, err = export(path, "torchscript", tmp_path / "f.ts", capsys)
@@ -66,12 +67,15 @@ def test_torchscript_reproduces_the_field(learner: str, models, tmp_path: Path, 
 
 
 @pytest.mark.slow
-def test_onnx_reproduces_the_node_field_and_refuses_what_onnx_cannot_express(
-        models, tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("learner", ["node", "stable_node"])
+def test_onnx_reproduces_the_node_fields_and_refuses_what_onnx_cannot_express(
+        learner: str, models, tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Both NODEs export (the stable NODE on its frozen flow parameters: no eigen-decomposition, so
+    ONNX expresses the flow, V, grad V and the correction of Eq. (L2))."""
     pytest.importorskip("onnxscript")
     from onnx.reference import ReferenceEvaluator
 
-    path, field = models["node"]
+    path, field = models[learner]
     code, err = export(path, "onnx", tmp_path / "f.onnx", capsys)
     assert code == 0 and err == ""
     x = points(field)

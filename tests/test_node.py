@@ -312,3 +312,24 @@ def test_stratified_sample_covers_every_stratum() -> None:
     idx = stratified_sample(1000, 64, gen)
     edges = np.arange(65) * 1000 // 64
     assert ((idx.numpy() >= edges[:-1]) & (idx.numpy() < edges[1:])).all()
+
+
+@pytest.mark.parametrize("weight_decay", [0.0, 1e-3])
+def test_adam_is_torch_adam_with_its_cosine_schedule_bit_for_bit(weight_decay: float) -> None:
+    """``lfd.learners.optim.Adam`` (no torch.optim import, which costs seconds) takes the same steps as
+    torch.optim.Adam stepped with CosineAnnealingLR, past t_max too."""
+    torch.manual_seed(0)
+    ours = [torch.randn(5, 3, requires_grad=True), torch.randn(3, requires_grad=True)]
+    theirs = [p.detach().clone().requires_grad_(True) for p in ours]
+    opt = Adam(ours, lr=2e-2, lr_final=1e-4, t_max=40, weight_decay=weight_decay)
+    ref = torch.optim.Adam(theirs, lr=2e-2, weight_decay=weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(ref, T_max=40, eta_min=1e-4)
+    for _ in range(50):
+        x = torch.randn(7, 5)
+        for params, o in ((ours, opt), (theirs, ref)):
+            o.zero_grad()
+            ((x @ params[0] + params[1]).tanh() ** 2).sum().backward()
+            o.step()
+        sched.step()
+        assert all(torch.equal(a, b) for a, b in zip(ours, theirs))
+        assert opt.lr == ref.param_groups[0]["lr"]

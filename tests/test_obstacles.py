@@ -548,18 +548,21 @@ def test_tracking_phase_keeps_the_demos_pace_in_mid_band() -> None:
 
 
 def test_phased_field_steers_toward_its_runs_end() -> None:
-    """A start-conditioned reference whose demos end apart ends at r(1 | x0), not at the mean goal:
-    Eqs. (O2)-(O3) take r(1 | x0) as the goal of that run, so with an obstacle beside that end
-    the run still stops there; an end inside an obstacle is refused."""
+    """Demos that end apart are learned relative to their own ends, so every run of the tracking
+    field ends at the goal it is given (here one moved off the mean end, ``toward``): Eqs. (O2)-(O3)
+    take r(1 | x0) as the goal of that run, so with an obstacle beside that end the run still stops
+    there; a goal inside an obstacle is refused."""
     base = lfd.spiral(n_demos=3, radius=0.13)
     u = np.clip((base.t - base.t[:, :1]) / (base.t[:, -1:] - base.t[:, :1]), 0.0, 1.0)[..., None]
     ends = np.array([[0.01, 0.0], [0.0, 0.0], [-0.01, 0.0]])    # within the demos' end tolerance
     demos = lfd.DemoSet(t=base.t, x=base.x + u ** 3 * ends[:, None, :], name="spread-ends")
-    field = lfd.train("tracking", demos, seed=0)
+    trained = lfd.train("tracking", demos, seed=0)
     x0 = demos.x[0, 0]
+    assert float(np.linalg.norm(trained.reference(np.array([1.0]), x0)[0] - trained.goal)) < 1e-9
+    off = np.array([0.006, 0.002])
+    field = trained.toward(trained.goal + off)
     end = field.reference(np.array([1.0]), x0)[0]
-    off = end - field.goal
-    assert float(np.linalg.norm(off)) > 0.004                  # this run does not end at the mean goal
+    np.testing.assert_allclose(end, trained.goal + off, atol=1e-9)
     side = np.array([-off[1], off[0]]) / np.linalg.norm(off)
     ob = Sphere(end + 0.014 * side, 0.01)                      # Gamma(end) = 1.4: omega > 0 there
     a = avoid(field, [ob])
@@ -572,7 +575,7 @@ def test_phased_field_steers_toward_its_runs_end() -> None:
     x, s = a.rollout_with_phase(x0, t)
     assert float(a.gamma(x).min()) >= 1.0 and s[-1] > 1.0 - 1e-4
     assert float(np.linalg.norm(x[-1] - end)) < 1e-3 * demos.extent
-    with pytest.raises(ConfigError, match="run's goal"):
+    with pytest.raises(ConfigError, match="goal"):
         r = 0.4 * float(np.linalg.norm(off))                   # the mean goal outside, the run's end inside
         avoid(field, [Sphere(end + 0.5 * r * side, r)]).phase_point_fn(x0)
 

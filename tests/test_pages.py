@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -96,21 +95,10 @@ def browser() -> Any:
     b.close()
 
 
-@pytest.fixture(scope="module")
-def models(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    old = os.environ.get("LFD_CACHE_DIR")
-    os.environ["LFD_CACHE_DIR"] = str(tmp_path_factory.mktemp("models"))
-    yield os.environ["LFD_CACHE_DIR"]
-    if old is None:
-        os.environ.pop("LFD_CACHE_DIR", None)
-    else:
-        os.environ["LFD_CACHE_DIR"] = old
-
-
 # ---------------------------------------------------------------- the arm job
 
 @pytest.fixture(scope="module")
-def arm(models: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
+def arm(model_cache: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("arm")
     save_file(spiral(n_demos=2, n_samples=40, duration=1.5), d / "demos.npz")
     job = ArmJob(robot="planar", learners=("node", "contraction"), demos=str(d / "demos.npz"),
@@ -161,7 +149,7 @@ def test_arm_page_marks_the_best_of_each_scenario(browser: Browser, arm: Path) -
                                                  for c in mine], (scenario, key, mine)
 
 
-def test_arm_page_is_written_without_videos_too(models: str, tmp_path: Path) -> None:
+def test_arm_page_is_written_without_videos_too(model_cache: str, tmp_path: Path) -> None:
     save_file(spiral(n_demos=2, n_samples=40, duration=1.5), tmp_path / "demos.npz")
     out = tmp_path / "run"
     sim.run_job(ArmJob(robot="planar", learners=("contraction",), demos=str(tmp_path / "demos.npz"),
@@ -176,7 +164,7 @@ def test_arm_page_is_written_without_videos_too(models: str, tmp_path: Path) -> 
 # ---------------------------------------------------------------- the sweep
 
 @pytest.fixture(scope="module")
-def sweep_out(models: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
+def sweep_out(model_cache: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sweep")
     # 2 learners x (1 direction x 2 forces + 1 offset); a 400 N push throws the planar arm off its goal
     argv = ["--out", str(out), "--workers", "1", "--robots", "planar", "--directions", "1", "--forces", "20,400",

@@ -54,7 +54,7 @@ def test_turned_start_and_goal_are_reached(experiment) -> None:
     off = exp.run(field, "offset", (StartOffset(distance_m=0.05, angle_deg=30.0, seed=3),))
     start_rot = exp.placement.rotation_to_world(exp.task_demos.x[0, 0])
     assert abs(float(np.degrees(geodesic_angle(off.trace.ee_rot[0], start_rot))) - 30.0) < 0.5
-    assert abs(float(np.linalg.norm(off.trace.ee[0] - exp.demo_world[0])) - 0.05) < 1e-3
+    assert abs(float(np.linalg.norm(off.trace.ee[0] - exp.setup.demo_world[0])) - 0.05) < 1e-3
     assert off.metrics["final_goal_error_m"] <= 1e-3 and off.metrics["final_goal_error_deg"] <= 1.0
     goal = exp.run(field, "goal", (GoalShift(distance_m=0.02, angle_deg=15.0, seed=4),))
     nominal = exp.placement.rotation_to_world(np.asarray(field.goal))

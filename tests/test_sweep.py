@@ -9,7 +9,6 @@ cache), 2 push directions x 1 force + 2 start offsets per learner (8 runs).
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -25,18 +24,7 @@ N_RUNS = 8
 
 
 @pytest.fixture(scope="module")
-def models(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    old = os.environ.get("LFD_CACHE_DIR")
-    os.environ["LFD_CACHE_DIR"] = str(tmp_path_factory.mktemp("models"))
-    yield os.environ["LFD_CACHE_DIR"]
-    if old is None:
-        os.environ.pop("LFD_CACHE_DIR", None)
-    else:
-        os.environ["LFD_CACHE_DIR"] = old
-
-
-@pytest.fixture(scope="module")
-def local(models: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
+def local(model_cache: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sweep_local")
     assert sweep.main(["--out", str(out), "--workers", "2", *ARGS]) == 0
     return out

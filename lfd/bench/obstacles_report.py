@@ -31,21 +31,21 @@ KEPT_HEADING = "## Why the NODE misses"
 
 
 def run_obstacle_sweep(placements: int, workers: int, cache: str | Path, report: str | Path,
-                       plain: bool = True) -> int:
-    """Run ``placements`` scenes (with ``plain``, also the ablation without Eqs. (O2)-(O3)),
-    ``workers`` at a time, cells cached in ``cache``; write the report and its figure
+                       plain: bool = True, learners: tuple[str, ...] = ob.LEARNERS) -> int:
+    """Run ``placements`` scenes of ``learners`` (with ``plain``, also the ablation without Eqs.
+    (O2)-(O3)), ``workers`` at a time, cells cached in ``cache``; write the report and its figure
     ``figures/obstacle_fields.png`` beside it. Returns the exit code (0)."""
-    cells = ob.make_cells(placements, plain=plain)
+    cells = ob.make_cells(placements, learners, plain=plain)
     for shape in sorted({c.shape for c in cells}, key=ob.SHAPES.index):   # train once, in this process
         demos = ob.demo_set(shape)
-        for learner in ob.LEARNERS:
+        for learner in learners:
             cached_field(learner, demos, 0, {}, progress=sys.stderr.isatty())
     result = run_cells(cells, cache, workers=workers, compute=ob.compute_obstacle_cell, desc="obstacles",
                        progress=sys.stderr.isatty())
     for f in result.failed:   # shown by lfd.cli as one line "lfd: warning: ..."
         warnings.warn(f"cell {f['cell']} failed ({f['reason']}); run again to retry it", RuntimeWarning, stacklevel=1)
     report = Path(report)
-    lines = report_lines(result.records, placements)
+    lines = report_lines(result.records, placements, learners)
     figure = figure_scenes(result.records, Path(cache), report.parent / "figures" / "obstacle_fields.png")
     if figure:
         lines += ["", f"![Trajectories of scenes where the plain modulation fails]({figure})", ""]
@@ -58,7 +58,7 @@ def run_obstacle_sweep(placements: int, workers: int, cache: str | Path, report:
     return 0
 
 
-def report_lines(recs: list[dict[str, Any]], placements: int) -> list[str]:
+def report_lines(recs: list[dict[str, Any]], placements: int, learners: tuple[str, ...] = ob.LEARNERS) -> list[str]:
     """The report's markdown lines (module docstring)."""
     lines = ["# Obstacles at the field level: every learner still reaches its goal", "",
              "Made by `lfd bench obstacles` (`lfd.bench.obstacles`). "
@@ -72,7 +72,7 @@ def report_lines(recs: list[dict[str, Any]], placements: int) -> list[str]:
              "| learner | modulation | scenes | starts converged | scenes with every start converged | entries "
              "| worst final error (mm) |",
              "|---|---|---|---|---|---|---|"]
-    for learner in ob.LEARNERS:
+    for learner in learners:
         for conv in (True, False):
             rs = [r for r in recs if r["learner"] == learner and r["convergence"] == conv]
             if not rs:
@@ -84,10 +84,10 @@ def report_lines(recs: list[dict[str, Any]], placements: int) -> list[str]:
             lines.append(f"| {learner} | {name} | {len(rs)} | {conv_starts}/{starts} ({share:.1f} %) "
                          f"| {whole}/{len(rs)} | {sum(r['entries'] for r in rs)} | {worst:.3g} |")
     lines += ["", "Per shape, Eqs. (O1)-(O3), starts converged:", "",
-              "| shape | " + " | ".join(ob.LEARNERS) + " |", "|---|" + "---|" * len(ob.LEARNERS)]
+              "| shape | " + " | ".join(learners) + " |", "|---|" + "---|" * len(learners)]
     for shape in ob.SHAPES:
         row = [shape]
-        for learner in ob.LEARNERS:
+        for learner in learners:
             rs = [r for r in recs if r["learner"] == learner and r["shape"] == shape and r["convergence"]]
             row.append(f"{sum(r['converged'] for r in rs)}/{sum(r['starts'] for r in rs)}" if rs else "-")
         lines.append("| " + " | ".join(row) + " |")

@@ -100,6 +100,8 @@ def _add_reports(sub: Any) -> None:
     o.add_argument("--report", default=os.path.join("reports", "obstacle_fields.md"), metavar="PATH",
                    help="the report (default: reports/obstacle_fields.md)")
     o.add_argument("--no-plain", action="store_true", help="skip the ablation without Eqs. (O2)-(O3)")
+    o.add_argument("--learner", default="all", metavar="NAME,...|all",
+                   help="learners, comma-separated (default: all of node, stable_node, contraction, tracking)")
 
 
 def resolve_learners(spec: str) -> list[str]:
@@ -231,10 +233,17 @@ def _run_report(args: argparse.Namespace) -> int:
 
         check_output(args.out, "--out", {"--node-results file": args.node_results})
         return run_tradeoff(args.shapes, args.workers, args.out, args.node_results)
+    from lfd.bench.obstacles import LEARNERS
     from lfd.bench.obstacles_report import run_obstacle_sweep
 
+    names = LEARNERS if args.learner == "all" else tuple(s.strip() for s in args.learner.split(",") if s.strip())
+    unknown = [n for n in names if n not in LEARNERS]
+    if unknown or not names:
+        raise ConfigError(f"unknown learner(s) {', '.join(unknown) or '(none given)'}; "
+                          f"known: {', '.join(LEARNERS)}, all")
     check_output(args.report, "--report")
-    return run_obstacle_sweep(args.placements, args.workers, args.cache, args.report, plain=not args.no_plain)
+    return run_obstacle_sweep(args.placements, args.workers, args.cache, args.report, plain=not args.no_plain,
+                              learners=tuple(n for n in LEARNERS if n in names))
 
 
 def _check_run(args: argparse.Namespace) -> str | None:

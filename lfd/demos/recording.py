@@ -102,14 +102,9 @@ def clean_demo(t: np.ndarray, x: np.ndarray, q: np.ndarray | None, name: str, in
 
     Parameters
     ----------
-    t : array, shape (T,)
-        Times [s].
-    x : array, shape (T, d)
-        Positions.
-    q : array, shape (T, 4), or None
-        Orientations (w, x, y, z).
-    name, index : str, int
-        The set's name and the demo's index, for the notes and the messages.
+    t, x, q, name, index
+        As ``lfd.demos.demoset.check_demo``'s: times (T,) [s], positions (T, d), orientations
+        (T, 4) (w, x, y, z) or None, and the set's name and the demo's index for the notes.
 
     Returns
     -------

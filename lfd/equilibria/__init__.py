@@ -11,7 +11,8 @@ The method: docs/equations.md, "Equilibria and closed orbits", Eqs. (E1)-(E4).
 
 from __future__ import annotations
 
-from lfd.equilibria.finder import equilibria_summary, find_equilibria, search_box
+from lfd.equilibria.finder import check_box, equilibria_summary, find_equilibria, search_box
 from lfd.equilibria.report import ClosedOrbit, Equilibrium, EquilibriumReport
 
-__all__ = ["ClosedOrbit", "Equilibrium", "EquilibriumReport", "equilibria_summary", "find_equilibria", "search_box"]
+__all__ = ["ClosedOrbit", "Equilibrium", "EquilibriumReport", "check_box", "equilibria_summary", "find_equilibria",
+           "search_box"]

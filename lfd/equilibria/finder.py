@@ -59,7 +59,7 @@ def find_equilibria(field: Field, lo: np.ndarray, hi: np.ndarray, duration: floa
     """
     require_kind(field, (FieldKind.AUTONOMOUS, FieldKind.PHASED), "the search for equilibria")
     t0 = time.perf_counter()
-    lo, hi = _box(field, lo, hi)
+    lo, hi = check_box(field, lo, hi)
     if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance < 1):
         raise ConfigError(f"tolerance must be in (0, 1), got {tolerance!r}")
     if duration is not None and not (isinstance(duration, (int, float)) and math.isfinite(duration)
@@ -131,7 +131,9 @@ def _distinct(pts: np.ndarray, goal: np.ndarray, reach: float, radius: float) ->
     return pts[np.linalg.norm(pts - goal, axis=1) > reach]
 
 
-def _box(field: Field, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def check_box(field: Field, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The box (lo, hi) as float64 arrays of shape (d,); ConfigError unless it is finite, of the field's
+    dimension, with hi > lo on every axis."""
     lo, hi = np.asarray(lo, dtype=np.float64).reshape(-1), np.asarray(hi, dtype=np.float64).reshape(-1)
     d = field.dim
     if lo.shape != (d,) or hi.shape != (d,):

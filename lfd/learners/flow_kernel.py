@@ -177,6 +177,18 @@ def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np
         out[i] *= scale
 
 
+def pack_flow(params: list[dict[str, Any]], d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                              np.ndarray, np.ndarray, float]:
+    """The flow's arguments of the compiled kernels, each layer's stacked (first axis: the (swirl,
+    block) pair): centres, theta, 1 / (2 rho^2), the generators K (zeros in 2-D), W1 with its bias, W2,
+    and 1 / R^2. params : ``BoundedFlow.numpy_params()``; d : the dimension."""
+    def stacked(key: str) -> np.ndarray:
+        return np.ascontiguousarray(np.stack([p.get(key, np.zeros((d, d))) if key == "K" else p[key] for p in params]))
+
+    return (stacked("c"), stacked("theta"), stacked("inv_2rho2"), stacked("K"), stacked("w1b"), stacked("w2"),
+            float(params[0]["inv_r2"]))
+
+
 def kernel() -> Any:
     """The compiled kernel (compiled, or loaded from numba's cache, on its first call)."""
     return _kernel
@@ -193,13 +205,7 @@ def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np
     The evaluator owns scratch memory: one evaluator is for one thread.
     """
     d = len(y_star)
-    centers = np.ascontiguousarray(np.stack([p["c"] for p in params]))
-    theta = np.ascontiguousarray(np.stack([p["theta"] for p in params]))
-    inv_2rho2 = np.ascontiguousarray(np.stack([p["inv_2rho2"] for p in params]))
-    gen = np.ascontiguousarray(np.stack([p.get("K", np.zeros((d, d))) for p in params]))
-    w1b = np.ascontiguousarray(np.stack([p["w1b"] for p in params]))
-    w2 = np.ascontiguousarray(np.stack([p["w2"] for p in params]))
-    inv_r2 = float(params[0]["inv_r2"])
+    centers, theta, inv_2rho2, gen, w1b, w2, inv_r2 = pack_flow(params, d)
     a = np.ascontiguousarray(a, dtype=np.float64)
     y_star = np.ascontiguousarray(y_star, dtype=np.float64)
     goal_ = np.zeros(d) if goal is None else np.ascontiguousarray(goal, dtype=np.float64).copy()

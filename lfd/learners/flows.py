@@ -16,8 +16,7 @@ layer's strength is smoothly saturated below its share, so that
 
 with b/a = (s_hi / s_lo)^2 < KAPPA for every parameter value: the metric bounds a = s_lo^2,
 b = s_hi^2 of the paper's Eq. (18) (``lfd.learners.contraction``). Each layer also bounds its
-curvature |D J_k| (Eq. (F5), ``LayerBound.curvature``) for the field's Lipschitz bound, Eq. (C6).
-The derivations of Eqs. (F1)-(F5): docs/equations.md.
+curvature |D J_k| (Eq. (F5)) for Eq. (C6). Derivations of Eqs. (F1)-(F5): docs/equations.md.
 
 References
 ----------
@@ -284,31 +283,40 @@ class BoundedFlow(nn.Module):
     def forward_with_tangent(self, x: torch.Tensor, v: torch.Tensor,
                              params: dict[str, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """y = phi(x) and the Jacobian-vector product J_phi(x) v, both shape (B, d), in forward mode:
-        layer by layer, without forming J_phi (so without the (B, d, H) products of
-        ``forward_with_jacobian``):
+        layer by layer, without forming J_phi (nor the (B, d, H) products of ``forward_with_jacobian``):
 
-        - swirl, Eq. (F1): J u = R (u + q Kz (z'u)), R w = w + sin(ang) K w + (1 - cos(ang)) K (K w);
+        - swirl, Eq. (F1): J u = R (u + q Kz (z'u)), R w = w + sin(ang) K w + (1 - cos(ang)) K (K w)
+          (d = 2: R w = cos(ang) w + sin(ang) K w);
         - residual block, Eq. (F3): J u = u + e(x) (W2 ((1 - th^2) * W1 u) - h (x'u) / R^2).
 
-        x, v : tensors, shape (B, d); ``params`` as in ``forward_with_jacobian``.
+        x, v : tensors, shape (B, d); ``params`` as in ``forward_with_jacobian``. Written for few
+        tensor operations (the fit of a Lyapunov function calls it once per optimiser step).
         """
         p = self.scaled() if params is None else params
         inv_r2 = 1.0 / self.window ** 2
-        for k in range(self.n_pairs):
-            z = x - self.center[k]
-            ang, q = self._angle(p, k, (z * z).sum(1))
+        half_inv_rho2 = 0.5 / p["rho"] ** 2                                   # (L, J)
+        layers = zip(self.center.unbind(0), p["theta"].unbind(0), half_inv_rho2.unbind(0),
+                     (p["theta"] * half_inv_rho2).unbind(0), self.w1.unbind(0), self.b1.unbind(0),
+                     p["w2"].unbind(0))
+        for k, (c, theta, inv, theta_inv, w1, b1, w2) in enumerate(layers):
+            z = x - c
+            e = torch.exp(-(z * z).sum(1, keepdim=True) * inv)                # (B, J)
+            ang, q = e @ theta, -2.0 * (e @ theta_inv)                        # theta(r), theta'(r) / r
             cs, sn = torch.cos(ang)[:, None], torch.sin(ang)[:, None]
             kz = self._generator(p, k, z)
-            u = v + (q * (z * v).sum(1))[:, None] * kz
+            u = torch.addcmul(v, (q * (z * v).sum(1))[:, None], kz)
             ku = self._generator(p, k, u)
-            x = self.center[k] + z + sn * kz + (1 - cs) * self._generator(p, k, kz)
-            v = u + sn * ku + (1 - cs) * self._generator(p, k, ku)
-            env = torch.exp(-0.5 * (x * x).sum(1) * inv_r2)[:, None]
-            th = torch.tanh(torch.addmm(self.b1[k], x, self.w1[k].T))
-            w2 = p["w2"][k]
-            h = th @ w2.T
-            dh = ((1 - th * th) * (v @ self.w1[k].T)) @ w2.T - h * ((x * v).sum(1, keepdim=True) * inv_r2)
-            x, v = x + env * h, v + env * dh
+            if self.dim == 2:                                                 # K^2 = -I
+                x = c + cs * z + sn * kz
+                v = cs * u + sn * ku
+            else:
+                x = c + z + sn * kz + (1 - cs) * self._generator(p, k, kz)
+                v = u + sn * ku + (1 - cs) * self._generator(p, k, ku)
+            th = torch.tanh(torch.addmm(b1, x, w1.T))
+            env = torch.exp(-0.5 * inv_r2 * (x * x).sum(1, keepdim=True))
+            dh = ((1 - th * th) * (v @ w1.T) - th * ((x * v).sum(1, keepdim=True) * inv_r2)) @ w2.T
+            x = torch.addcmul(x, env, th @ w2.T)
+            v = torch.addcmul(v, env, dh)
         return x, v
 
     def forward_with_inverse_jacobian(self, x: torch.Tensor

@@ -64,6 +64,20 @@ def mlp(x: np.ndarray, prm: np.ndarray, widths: np.ndarray, act: int,
         z = y
 
 
+def pack_layers(layers: list[tuple[np.ndarray, np.ndarray]], activation: str
+                ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The arguments ``mlp`` takes for ``layers`` (W_i (out, in), b_i (out,), input first): every
+    weight and bias in one float64 array, the widths (input first, int64) and the activation's code.
+    Raises ValueError for an unknown activation."""
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"unknown activation '{activation}'")
+    prm = np.ascontiguousarray(np.concatenate([np.concatenate([np.asarray(w, dtype=np.float64).ravel(),
+                                                               np.asarray(b, dtype=np.float64).ravel()])
+                                               for w, b in layers]))
+    widths = np.array([layers[0][0].shape[1]] + [w.shape[0] for w, _ in layers], dtype=np.int64)
+    return prm, widths, ACTIVATIONS[activation]
+
+
 def mlp_point_fn(layers: list[tuple[np.ndarray, np.ndarray]], activation: str
                  ) -> Callable[[np.ndarray], np.ndarray]:
     """x (d,) -> W_L z_{L-1} + b_L (d,) with z_i = sigma(W_i z_{i-1} + b_i), z_0 = x, compiled.
@@ -81,13 +95,7 @@ def mlp_point_fn(layers: list[tuple[np.ndarray, np.ndarray]], activation: str
         x, array of shape (d,) -> array of shape (d_out,), a fresh array; reentrant (no shared
         buffers).
     """
-    if activation not in ACTIVATIONS:
-        raise ValueError(f"unknown activation '{activation}'")
-    prm = np.ascontiguousarray(np.concatenate([np.concatenate([np.asarray(w, dtype=np.float64).ravel(),
-                                                               np.asarray(b, dtype=np.float64).ravel()])
-                                               for w, b in layers]))
-    widths = np.array([layers[0][0].shape[1]] + [w.shape[0] for w, _ in layers], dtype=np.int64)
-    act = ACTIVATIONS[activation]
+    prm, widths, act = pack_layers(layers, activation)
     kernel, f64, empty, d_out = mlp, np.dtype(np.float64), np.empty, int(widths[-1])
 
     def f(x: np.ndarray) -> np.ndarray:

@@ -17,8 +17,7 @@ per-op overhead (the batches are small): with the default fixed-step ``rk4`` (to
 3/8 rule) a whole batch of segments integrates as one autograd node with its exact discrete adjoint
 (``lfd.learners.node_kernel.RK4Segments``); with another solver or the adjoint, torchdiffeq
 integrates the MLP as one fused node (``ScaledMLP``). Both are checked against autograd through
-torchdiffeq in the tests. The details (sample units, curriculum, strata): docs/equations.md,
-"The NODE's loss".
+torchdiffeq in the tests. Details: docs/equations.md, "The NODE's loss".
 
 References
 ----------

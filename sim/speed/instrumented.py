@@ -135,7 +135,7 @@ def replay_ik(exp: sim.Experiment, field: Field, q_path: np.ndarray, backend: st
     """Wall time of ``solve`` (s), shape (K,), of the IK ``backend`` for the twists of the field along
     q_path, shape (K, n) (its runner from the run's start, one call per state)."""
     ctl = FieldController(exp.robot, exp.placement, 1.0 / exp.options["control_hz"], ik=backend,
-                          rotation_ref=exp.rotation_ref, mj_model=exp.physics.model.ptr)
+                          rotation_ref=exp.setup.rotation_ref, mj_model=exp.physics.model.ptr)
     ctl.reset(q_path[0])
     dt = 1.0 / exp.options["control_hz"]
     runner = field.runner(exp.start, dt)

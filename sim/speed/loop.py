@@ -81,7 +81,7 @@ def cost(exp: sim.Experiment, field: Field, repeats: int, quick: bool = False) -
     print("breakdown (instrumented, medians):")
     for name, v in parts.items():
         print(f"  {name:30s} {np.median(v) * 1e6:7.1f} us  {np.median(v) / total:5.1%}")
-    fc = each_call_s(field.single_point_evaluator(), exp.task_demos.x[exp.demo_index], 2000 if quick else 20000)
+    fc = each_call_s(field.single_point_evaluator(), exp.task_demos.x[exp.setup.demo_index], 2000 if quick else 20000)
     print(f"field alone           : {stats(fc)}   ({median_ratio(fc, bare_t):.2f}x a bare mj_step)")
     envt = np.concatenate(envs)
     env_ratio = median_ratio(envt, loop_t)

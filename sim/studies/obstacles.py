@@ -41,7 +41,7 @@ from sim.pipeline import OBSTACLE_LEAD_S, OBSTACLE_TIME_FACTOR, grown
 __all__ = ["COST_HEADING", "Cell", "LEARNERS", "arc_point", "compute", "main", "report", "spiral3", "user_case"]
 
 PROG = "panda_obstacles"
-LEARNERS = ("contraction", "node", "tracking")
+LEARNERS = ("contraction", "node", "stable_node", "tracking")
 SCENARIOS = ("none", "push")
 GOAL_MM = 5.0
 #: the report's hand-written section (``scripts/speed.py arm-clearance``'s measurements), kept on a rewrite
@@ -113,13 +113,18 @@ def main(argv: list[str] | None = None) -> int:
                                     "out/obstacles_arm-quick)")
     p.add_argument("--report", help="the report (default reports/obstacles_arm.md; --quick: "
                                      "out/obstacles_arm-quick/obstacles_arm.md)")
+    p.add_argument("--learner", default="all", help="learners, comma-separated (default: all of "
+                                                     f"{', '.join(LEARNERS)})")
     p.add_argument("--quick", action="store_true", help="a smoke test: the user's case, the tracking learner, "
                                                         "no push")
     a = p.parse_args(argv)
     if not 1 <= a.placements <= 1000:
         return fail(PROG, "--placements must be between 1 and 1000")
+    chosen = LEARNERS if a.learner == "all" else tuple(s.strip() for s in a.learner.split(","))
+    if not chosen or any(n not in LEARNERS for n in chosen):
+        return fail(PROG, f"--learner takes {', '.join(LEARNERS)} or all, got {a.learner!r}")
     quick = Path("out") / "obstacles_arm-quick"
-    placements, learners, scenarios = (1, ("tracking",), ("none",)) if a.quick else (a.placements, LEARNERS, SCENARIOS)
+    placements, learners, scenarios = (1, ("tracking",), ("none",)) if a.quick else (a.placements, chosen, SCENARIOS)
     cache = a.cache or str(quick if a.quick else Path("out") / "panda_obstacles")
     path = Path(a.report or (quick / "obstacles_arm.md" if a.quick else Path("reports") / "obstacles_arm.md"))
     try:

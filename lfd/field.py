@@ -143,6 +143,9 @@ class Field(Protocol):
         """The same learned motion toward another goal (``VelocityField.toward``)."""
         ...
 
+    def stability_constants(self) -> dict[str, Any] | None:
+        """The constants of a Lyapunov function the field states (``lfd.guarantees.Guarantees``), or None."""
+
     def trajectory(self, x0: np.ndarray, t: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, np.ndarray | None]:
         """Single-start RK4 (Eq. (8)) from x0, shape (d,), over t, shape (T,): x (T, d) and the
         phase (T,) of a field that has one, else None."""
@@ -274,8 +277,8 @@ class VelocityField(Guarantees):
         The field is learned relative to its goal (f(x) = s f_n((x - g) / s), ``lfd.normalization``),
         so moving the goal moves the whole motion with it: positions by translation, and a pose
         field's orientations by its chart moved to the new goal orientation (Eq. (P1) at R_g').
-        Every constant of the field (a contraction rate, its metric bounds, a Lipschitz bound) is
-        the same for any goal.
+        Every constant of the field (a rate, metric bounds, a Lipschitz bound, a Lyapunov function's
+        constants) is the same for any goal.
 
         Parameters
         ----------
@@ -381,24 +384,10 @@ class VelocityField(Guarantees):
 
     def rollout(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4",
                 substeps: int = 1) -> np.ndarray:
-        """Integrate B starts at once (``lfd.integrate.rollout``).
-
-        Parameters
-        ----------
-        x0 : array, shape (B, d) or (d,)
-            Starts, user units.
-        t : array, shape (T,)
-            Output times, s.
-        method : str
-            A solver of ``lfd.integrate.SOLVERS``.
-        substeps : int
-            Fixed-step solvers take ``substeps`` steps per interval of t; an adaptive solver
-            refuses substeps > 1 (ValueError).
-
-        Returns
-        -------
-        array, shape (B, T, d) (or (T, d) for one start)
-        """
+        """Integrate B starts at once (``lfd.integrate.rollout``): x0 (B, d) or (d,), user units, over
+        t (T,), s, with ``method`` of ``lfd.integrate.SOLVERS``; fixed-step solvers take ``substeps``
+        steps per interval of t (an adaptive solver refuses substeps > 1: ValueError). Returns x
+        (B, T, d), or (T, d) for one start."""
         return integrate.rollout(self, x0, t, method, substeps)
 
     def runner(self, start: np.ndarray | None, dt: float) -> Runner:
@@ -531,6 +520,10 @@ class FieldWrapper:
     def learner(self) -> str:
         """The nominal field's learner name (for plots and reports)."""
         return str(self.field.learner)
+
+    def stability_constants(self) -> dict[str, Any] | None:
+        """None: a wrapper changes the field, so the nominal field's Lyapunov function is not its own."""
+        return None
 
     @property
     def history(self) -> dict[str, Any]:

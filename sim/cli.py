@@ -23,7 +23,6 @@ __all__ = ["build_parser", "job_from_args", "main"]
 
 EXIT_USAGE = 2
 PROG = "demo_arm"
-LEARNER_CHOICES = ("node", "contraction", "tracking", "both")
 DEFAULT_SCENARIOS = ("none", "offset", "push")
 
 
@@ -137,8 +136,9 @@ def build_parser() -> argparse.ArgumentParser:
                 "loop, perturb them, score and film them.")
     p.add_argument("--robot", default="panda", help="planar, panda (default), or a .urdf/.xml file")
     p.add_argument("--ee-frame", help="tool frame name (needed for a robot file)")
-    p.add_argument("--learner", choices=LEARNER_CHOICES, help="learner(s) to run (default: both, "
-                   "or the learner of --model)")
+    p.add_argument("--learner", metavar="NAME,...|both", help="learner(s) to run, comma-separated: node, "
+                   "stable_node, contraction, tracking; both: node,contraction (default: the job's default "
+                   "learners, or the learner of --model)")
     p.add_argument("--model", help="a trained model file instead of training")
     p.add_argument("--demos", default="spiral",
                    help="spiral (default), spiral3d, lasa:NAME, robottasks:TASK (poses), bag:PATH:/topic, "
@@ -209,7 +209,8 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
     from sim.job import ArmJob, PushSpec
 
     learners = None if args.learner is None else (
-        ("node", "contraction") if args.learner == "both" else (args.learner,))
+        ("node", "contraction") if args.learner == "both"
+        else tuple(s.strip() for s in args.learner.split(",") if s.strip()))
     return ArmJob(
         robot=args.robot, ee_frame=args.ee_frame, learners=learners, model=args.model, demos=args.demos,
         scenarios=args.perturb, seed=args.seed, out=args.out, overwrite=args.overwrite, json=args.json,

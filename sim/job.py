@@ -16,7 +16,7 @@ from sim.experiment import SCENARIOS, scenario
 from sim.perturbations import Perturbation, Push
 
 #: the learners a job runs when it names none (and the panels of a side-by-side video)
-DEFAULT_LEARNERS = ("node", "contraction")
+DEFAULT_LEARNERS = ("node", "stable_node", "contraction")
 SIDE_BY_SIDE_LEARNERS = ("node", "contraction", "tracking")
 #: the controller's phase lead with obstacles (``sim.controller.Gains.lead_s``), s
 OBSTACLE_LEAD_S = 0.01

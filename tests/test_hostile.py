@@ -346,6 +346,7 @@ def test_demo_arm_checks_outputs_and_seed_first(demo_arm, tmp_path: Path,  # typ
         ([*run, "--robot", "planar", "--push-start", "100"], "the push ends at 100.2 s, after the run"),
         ([*run, "--robot", "planar", "--placement", "recorded"], "--placement recorded needs 3-D demos"),
         ([*run, "--robot", "planar", "--scale", "-1"], "--scale must be a positive number"),
+        ([*run, "--learner", "node,nope"], "unknown learner 'nope'; known: node, contraction, tracking, stable_node"),
     ]
     for argv, message in cases:
         assert demo_arm.main(argv) == 2

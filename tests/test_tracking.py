@@ -278,3 +278,30 @@ def test_bench_model_integrates_the_phase(spiral: lfd.DemoSet) -> None:
     y, _ = model.reproduce(demos.x, demos.t)
     ref = np.stack([model.field.rollout(x[0], ti - ti[0], substeps=2) for x, ti in zip(demos.x, demos.t)])
     assert np.abs(y - ref).max() < 1e-3
+
+
+@pytest.mark.parametrize("step", [None, 0.013])
+def test_pointwise_rollouts_are_torchdiffeqs_rk4_to_round_off(spiral: lfd.DemoSet, fields: dict[str, TrackingField],
+                                                              step: float | None) -> None:
+    """A few starts run point by point through the compiled field (``lfd.integrate.rk38_phase_grid``);
+    many run batched through torchdiffeq: the same 3/8-rule steps, grid and cubic output
+    interpolation, so the two agree to round-off, from any phase and start."""
+    import torch
+
+    from lfd import integrate
+    from lfd.learners import tracking
+
+    f = fields["K=3"]
+    x0 = spiral.x[:3, 0] + np.array([[0.02, -0.01], [0.0, 0.03], [-0.04, 0.0]])
+    t = np.linspace(0.0, 1.2 * float(f.duration), 157)
+    xs, ss = f.rollout_with_phase(x0, t, step=step, s0=np.array([0.0, 0.3, 0.9]))
+    assert len(x0) <= tracking.POINTWISE_MAX
+    opts = integrate.odeint_kwargs("rk4", step=step, t=t, interp=None if step is None else "cubic")
+    delta = f.start_offset(x0)
+    with torch.no_grad():
+        xt, st = f._rollout_torch(torch.tensor(x0), torch.tensor(t), None if delta is None else torch.tensor(delta),
+                                  "rk4", opts.get("options"), torch.tensor([0.0, 0.3, 0.9], dtype=torch.float64))
+    size = float(np.abs(xt.numpy()).max())
+    np.testing.assert_allclose(xs, xt.numpy(), rtol=0, atol=1e-11 * size)
+    np.testing.assert_allclose(ss, st.numpy(), rtol=0, atol=1e-11)
+    assert ss[:, -1].min() > 0.99 and np.linalg.norm(xs[:, -1] - f.goal, axis=1).max() < 0.05 * spiral.extent

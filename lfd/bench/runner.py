@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import sys
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -150,7 +151,7 @@ def _worker_cell(cell: Any) -> tuple[dict[str, Any], bytes]:
 
 
 def run_cells(cells: Sequence[Any], cache: str | Path, workers: int = 1, fresh: bool = False,
-              progress: bool = True, executor: str = "local", address: str | None = None,
+              progress: bool | None = None, executor: str = "local", address: str | None = None,
               compute: Callable[[Any], tuple[dict[str, Any], bytes]] | None = None,
               desc: str = "bench") -> BenchResult:
     """Run every cell not already in ``cache`` (all of them with ``fresh``), ``workers`` at a
@@ -161,8 +162,8 @@ def run_cells(cells: Sequence[Any], cache: str | Path, workers: int = 1, fresh: 
     the cache. ``compute`` (default: ``compute_cell``, with one torch thread) maps a cell (with
     ``stem``, ``learner`` and ``hash``, as ``lfd.bench.suite.Cell``) to (record, npz bytes); a
     record with an ``error`` is a cell its learner refused: listed in ``failed`` (``refused``),
-    not cached, so a later run tries it again. Returns records in the
-    order of ``cells``."""
+    not cached, so a later run tries it again. ``progress``: a progress bar (default: only when
+    stderr is a terminal). Returns records in the order of ``cells``."""
     address = check_executor(executor, address)
     cache = Path(cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -182,7 +183,8 @@ def run_cells(cells: Sequence[Any], cache: str | Path, workers: int = 1, fresh: 
     rank = {name: i for i, name in enumerate(LEARNER_ORDER)}
     todo.sort(key=lambda c: rank.get(c.learner, len(rank)))
     failed: list[dict[str, Any]] = []
-    bar = tqdm(total=len(cells), initial=len(cached), desc=desc, unit="cell", disable=not progress)
+    shown = sys.stderr.isatty() if progress is None else progress
+    bar = tqdm(total=len(cells), initial=len(cached), desc=desc, unit="cell", disable=not shown)
 
     def finished(i: int, result: tuple[dict[str, Any], bytes], attempts: int, node: dict[str, str]) -> None:
         c = todo[i]

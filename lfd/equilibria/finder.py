@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -27,6 +28,7 @@ MAX_STEPS = 20_000
 TOLERANCE = 0.01        # a rollout ends at a point when within this fraction of the box's diagonal
 FTOL = 1e-9             # |f| <= FTOL times the median |f| over the seeds at a root
 MERGE = 1e-5            # roots closer than this fraction of the box's diagonal are one
+REFINE = 8              # a closed orbit is confirmed by rollouts with steps this many times finer
 SETTLE = 0.1            # a rollout stops within SETTLE x the tolerance of an attractor (the goal, a root)
 
 
@@ -90,8 +92,9 @@ def _search(field: Field, lo: np.ndarray, hi: np.ndarray, duration: float | None
     steps = int(min(MAX_STEPS, max(STEPS, horizon * radius / STEP_RADIUS)))   # radius: finite, >= 0
     sinks = [p for p, e in zip([goal, *pts], roots.eigenvalues(fn, np.vstack([goal, pts]), lo, hi))
              if classify(e) == "attractor"]
+    far = _confinement(field, starts, goal)
     runs = orbits_.rollout(fn, starts, horizon, steps, lo, hi, np.array(sinks).reshape(-1, len(goal)),
-                           SETTLE * reach)
+                           SETTLE * reach, far)
 
     at_goal = np.linalg.norm(runs.end - goal, axis=1) <= reach
     still = ~runs.escaped & ~at_goal & (runs.travel <= reach)
@@ -106,15 +109,26 @@ def _search(field: Field, lo: np.ndarray, hi: np.ndarray, duration: float | None
     if len(pts):
         hit = (near <= reach).any(1) & ~at_goal
         owner[hit] = np.nanargmin(near[hit], axis=1)
-    cycles = _orbits(runs, ~runs.escaped & ~at_goal & (owner < 0) & (runs.travel > reach))
     n = len(starts)
+    escaped = runs.escaped.copy()
+    unresolved = ~at_goal & (owner < 0)
+    cycles: list[ClosedOrbit] = []
+    if unresolved.any():   # again with REFINE times finer steps: what the integrator alone made disappears
+        idx = np.flatnonzero(unresolved)
+        fine = orbits_.rollout(fn, starts[idx], horizon, max(steps, min(steps * REFINE, MAX_STEPS)), lo, hi,
+                               np.array(sinks).reshape(-1, len(goal)), SETTLE * reach, far)
+        fine_goal = np.linalg.norm(fine.end - goal, axis=1) <= reach
+        at_goal[idx[fine_goal]] = True
+        escaped[idx] = fine.escaped
+        cycles = [replace(c, basin=c.basin * len(idx) / n)
+                  for c in _orbits(fine, ~fine.escaped & ~fine_goal & (fine.travel > reach))]
     inside = _inside(pts, lo, hi)
     eqs = [Equilibrium(location=pts[i].tolist(), eigenvalues=[[float(v.real), float(v.imag)] for v in ev[i]],
                        type=classify(ev[i]), residual=float(np.linalg.norm(roots.evaluate(fn, pts[i:i + 1]))),
                        basin=float((owner == i).sum()) / n, in_box=bool(inside[i]))
            for i in range(len(pts)) if inside[i] or (owner == i).any()]
     eqs.sort(key=lambda e: (not e.attracting, -e.basin))
-    n_goal, n_out, n_eq = int(at_goal.sum()), int(runs.escaped.sum()), int((owner >= 0).sum())
+    n_goal, n_out, n_eq = int(at_goal.sum()), int(escaped.sum()), int((owner >= 0).sum())
     n_orbit = sum(round(o.basin * n) for o in cycles)
     method = {"seeds": layout, "n_seeds": int(n), "n_starts": int(n), "newton_iterations": roots.NEWTON_ITERATIONS,
               "jacobian_step": roots.JACOBIAN_STEP, "ftol": ftol, "duration_s": float(duration), "horizon_s": horizon,
@@ -142,6 +156,18 @@ def check_box(field: Field, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray,
     if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (hi > lo).all()):
         raise ConfigError(f"the box must be finite with max > min on every axis, got {lo.tolist()} .. {hi.tolist()}")
     return lo, hi
+
+
+def _confinement(field: Field, starts: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where a start escapes for a field that states a Lyapunov function whose conditions hold (the
+    stable NODE, Eq. (L3)): beyond overshoot x the farthest start's distance from the goal, the
+    region the stated bound keeps every trajectory in (leaving it is then a counterexample, and a
+    detour inside it is not an escape). None for any other field (the box grown by its size)."""
+    constants = field.stability_constants()
+    if not constants or not constants.get("holds"):
+        return None
+    radius = min(float(constants["overshoot"]) * float(np.max(np.linalg.norm(starts - goal, axis=1))), 1e150)
+    return goal - radius, goal + radius
 
 
 def _inside(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

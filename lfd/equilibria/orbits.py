@@ -33,13 +33,14 @@ class Rollouts:
 
 
 def rollout(f: PointsFn, x0: np.ndarray, horizon: float, steps: int, lo: np.ndarray, hi: np.ndarray,
-            sinks: np.ndarray, settle: float) -> Rollouts:
+            sinks: np.ndarray, settle: float, far: tuple[np.ndarray, np.ndarray] | None = None) -> Rollouts:
     """Classic RK4 (the paper's Eq. (8)) of dx/dt = f(x) from every start at once over ``horizon`` s in
     ``steps`` steps, Eq. (E3). A start that leaves the box [lo, hi] grown by its size on every side (or
     stops being finite) is frozen there and marked escaped; one within ``settle`` of one of the
-    ``sinks`` (K, d) (attractors: the goal, the roots found) stays there. x0 : (P, d); lo, hi : (d,)."""
+    ``sinks`` (K, d) (attractors: the goal, the roots found) stays there. x0 : (P, d); lo, hi : (d,);
+    far : the (lo, hi) a start escapes by leaving, instead of the box grown by its size."""
     width = hi - lo
-    far_lo, far_hi = lo - width, hi + width
+    far_lo, far_hi = (lo - width, hi + width) if far is None else far
     x = np.array(x0, dtype=np.float64)
     p, d = x.shape
     dt = horizon / steps

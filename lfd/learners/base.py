@@ -14,12 +14,23 @@ from lfd.field import VelocityField
 
 
 class Learner(ABC):
-    """A way to learn a velocity field. Subclasses set ``name``, ``Config`` (a dataclass whose
-    ``__post_init__`` raises ConfigError on bad values) and, optionally, ``field_class``."""
+    """A way to learn a velocity field. Subclasses give, as class keywords, ``name``, ``config`` (a
+    dataclass whose ``__post_init__`` raises ConfigError on bad values; ``Config``) and, optionally,
+    ``field`` (``field_class``): ``class NodeLearner(Learner, name="node", config=NodeConfig, field=NodeField)``."""
 
     name: ClassVar[str]
     Config: ClassVar[type]
     field_class: ClassVar[type[VelocityField]] = VelocityField
+
+    def __init_subclass__(cls, name: str | None = None, config: type | None = None,
+                          field: type[VelocityField] | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if name is not None:
+            cls.name = name
+        if config is not None:
+            cls.Config = config
+        if field is not None:
+            cls.field_class = field
 
     @classmethod
     def make_config(cls, **options: Any) -> Any:

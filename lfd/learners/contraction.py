@@ -31,7 +31,7 @@ import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch
@@ -39,7 +39,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from lfd.demos import DemoSet
-from lfd.field import ContractingField, VelocityField
+from lfd.field import ContractingField
 from lfd.learners.base import Learner
 from lfd.learners.flows import FACTORED_MIN_DIM, SWIRL_COMPONENTS, BoundedFlow, bounded_flow_numpy
 from lfd.threads import torch_threads
@@ -363,12 +363,8 @@ class _NonFinite(Exception):
     """The loss became NaN or inf: stop and keep the best parameters."""
 
 
-class ContractionLearner(Learner):
+class ContractionLearner(Learner, name="contraction", config=ContractionConfig, field=ContractionField):
     """Velocity field = diffeomorphism of a linear contracting system, Eqs. (C2)-(C3)."""
-
-    name: ClassVar[str] = "contraction"
-    Config: ClassVar[type] = ContractionConfig
-    field_class: ClassVar[type[VelocityField]] = ContractionField
 
     @classmethod
     def parameter_count(cls, dim: int, config: ContractionConfig) -> int:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numba
 import numpy as np
@@ -64,6 +65,23 @@ def mlp(x: np.ndarray, prm: np.ndarray, widths: np.ndarray, act: int,
         z = y
 
 
+def point_call(kernel: Any, d_in: int, d_out: int, *params: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """x (d_in,) -> ``kernel(x, *params, out)`` with a fresh out (d_out,): a compiled kernel as a
+    point function (x made float64 if it is not), the kernel compiled or loaded now, not in the
+    first control step."""
+    f64, empty = np.dtype(np.float64), np.empty
+
+    def f(x: np.ndarray) -> np.ndarray:
+        if type(x) is not np.ndarray or x.dtype is not f64:
+            x = np.asarray(x, dtype=np.float64)
+        out = empty(d_out)
+        kernel(x, *params, out)
+        return out
+
+    f(np.zeros(d_in))
+    return f
+
+
 def pack_layers(layers: list[tuple[np.ndarray, np.ndarray]], activation: str
                 ) -> tuple[np.ndarray, np.ndarray, int]:
     """The arguments ``mlp`` takes for ``layers`` (W_i (out, in), b_i (out,), input first): every
@@ -96,14 +114,4 @@ def mlp_point_fn(layers: list[tuple[np.ndarray, np.ndarray]], activation: str
         buffers).
     """
     prm, widths, act = pack_layers(layers, activation)
-    kernel, f64, empty, d_out = mlp, np.dtype(np.float64), np.empty, int(widths[-1])
-
-    def f(x: np.ndarray) -> np.ndarray:
-        if type(x) is not np.ndarray or x.dtype is not f64:
-            x = np.asarray(x, dtype=np.float64)
-        out = empty(d_out)
-        kernel(x, prm, widths, act, out)
-        return out
-
-    f(np.zeros(int(widths[0])))   # compile or load the kernel now, not in the first control step
-    return f
+    return point_call(mlp, int(widths[0]), int(widths[-1]), prm, widths, act)

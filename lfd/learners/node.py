@@ -31,7 +31,7 @@ import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar, cast
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -461,12 +461,8 @@ def _numpy_activation(name: str) -> Callable[[np.ndarray], np.ndarray]:
     raise ValueError(f"unknown activation '{name}'")
 
 
-class NodeLearner(Learner):
+class NodeLearner(Learner, name="node", config=NodeConfig, field=NodeField):
     """Neural ODE: an MLP field trained by multiple shooting through torchdiffeq."""
-
-    name: ClassVar[str] = "node"
-    Config: ClassVar[type] = NodeConfig
-    field_class: ClassVar[type[VelocityField]] = NodeField
 
     @classmethod
     def parameter_count(cls, dim: int, config: NodeConfig) -> int:

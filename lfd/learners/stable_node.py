@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, ClassVar, cast
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -306,12 +306,8 @@ def stability_certificate(field: StableNodeField) -> dict[str, Any]:
             "nominal_at_goal": at_goal, "holds": bool(holds)}
 
 
-class StableNodeLearner(Learner):
+class StableNodeLearner(Learner, name="stable_node", config=StableNodeConfig, field=StableNodeField):
     """The NODE's field corrected onto a learned Lyapunov function's decrease (Eqs. (L1)-(L4))."""
-
-    name: ClassVar[str] = "stable_node"
-    Config: ClassVar[type] = StableNodeConfig
-    field_class: ClassVar[type[VelocityField]] = StableNodeField
 
     @classmethod
     def parameter_count(cls, dim: int, config: StableNodeConfig) -> int:

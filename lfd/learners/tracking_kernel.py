@@ -19,6 +19,8 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
+from lfd.learners.mlp_kernel import point_call
+
 __all__ = ["nearest_point_fn", "phase_point_fn"]
 
 # prm: goal (d), then these scalars
@@ -157,14 +159,4 @@ def nearest_point_fn(ref: np.ndarray, dref: np.ndarray, goal: np.ndarray, scale:
     parameters as ``phase_point_fn``'s (ref, dref: the mean reference)."""
     ref, dref = _tables(ref, dref)
     prm = _params(goal, scale, rate, eps2, inv_t, stop, phase_end)
-    kernel, f64, empty, d = nearest_velocity, np.dtype(np.float64), np.empty, ref.shape[1]
-
-    def f(x: np.ndarray) -> np.ndarray:
-        if type(x) is not np.ndarray or x.dtype is not f64:
-            x = np.asarray(x, dtype=np.float64)
-        out = empty(d)
-        kernel(x, ref, dref, prm, out)
-        return out
-
-    f(np.zeros(d))   # compile or load the kernel now
-    return f
+    return point_call(nearest_velocity, ref.shape[1], ref.shape[1], ref, dref, prm)

@@ -33,7 +33,7 @@ import daqp
 import numpy as np
 
 from robots.errors import RobotError
-from robots.ik.gains import check_gain, is_number
+from robots.ik.gains import JointGains, check_gain, is_number
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
@@ -44,17 +44,14 @@ _EXIT_OK = (1, 2)      # DAQP: optimal, or optimal with a soft constraint violat
 
 
 @dataclass(frozen=True)
-class QpGains:
+class QpGains(JointGains):
     """mu: regularisation toward the posture pull, per unit joint speed^2 against 1 (m/s)^2 of task
-    error; posture_gain: k_p [1/s]; limit_margin [rad|m]; limit_gain: g in (0, 1], the share of the
-    distance to a soft joint bound that one step may cover; speed_fraction as ``DlsGains``;
-    rotation_weight: W of the three rotation rows (1 rad/s against 1 m/s of the position rows)."""
+    error; limit_gain: g in (0, 1], the share of the distance to a soft joint bound that one step may
+    cover; rotation_weight: W of the three rotation rows (1 rad/s against 1 m/s of the position rows);
+    the joints' gains as ``JointGains``."""
 
     mu: float = 1e-6
-    posture_gain: float = 1.0
-    limit_margin: float = 0.02
     limit_gain: float = 0.5
-    speed_fraction: float = 0.97
     rotation_weight: float = 0.3
 
     def __post_init__(self) -> None:

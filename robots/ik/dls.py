@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.lapack import dposv, dpotrf, dsyev
 
-from robots.ik.gains import check_gain
+from robots.ik.gains import JointGains
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
@@ -15,26 +15,12 @@ _FAST_TOL = 1e-9  # margin of the fast limit test over rounding: a qdot this clo
 
 
 @dataclass(frozen=True)
-class DlsGains:
+class DlsGains(JointGains):
     """damping: lambda_max; sv_threshold: eps, the smallest singular value below which damping starts;
-    posture_gain: k_p [1/s] of the null-space pull toward q_home;
-    limit_margin: kept distance to joint limits [rad|m];
-    speed_fraction: the IK commands at most this fraction of each joint's v_max, in (0, 1]: the joint
-    servo overshoots its command slightly, so at 1 a joint can exceed its v_max a little."""
+    the joints' gains as ``JointGains``."""
 
     damping: float = 0.05
     sv_threshold: float = 0.05
-    posture_gain: float = 1.0
-    limit_margin: float = 0.02
-    speed_fraction: float = 0.97
-
-    def __post_init__(self) -> None:
-        check_speed_fraction(self.speed_fraction)
-
-
-def check_speed_fraction(v: object) -> None:
-    """``RobotError`` unless v is a real number in (0, 1] (the gains' ``speed_fraction``)."""
-    check_gain("IK", "speed_fraction", v, "a number in (0, 1]", lambda x: 0.0 < x <= 1.0)
 
 
 class DlsBackend:

@@ -12,27 +12,20 @@ from pink.limits import ConfigurationLimit, VelocityLimit
 from pink.tasks import FrameTask, PostureTask
 
 from robots.errors import RobotError
-from robots.ik.dls import check_speed_fraction
+from robots.ik.gains import JointGains
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
 
 
 @dataclass(frozen=True)
-class PinkGains:
+class PinkGains(JointGains):
     """posture_cost: weight of the posture task relative to the tool task (cost 1 per m and per rad);
-    posture_gain: k_p [1/s] of the pull toward q_home; limit_margin: kept distance to joint limits [rad|m];
     config_limit_gain: pink's ConfigurationLimit gain in (0, 1]; damping: Tikhonov regularisation of the QP;
-    speed_fraction: the QP's velocity limit as a fraction of v_max, in (0, 1] (as ``DlsGains``)."""
+    the joints' gains as ``JointGains`` (speed_fraction: the QP's velocity limit)."""
 
     posture_cost: float = 1e-3
-    posture_gain: float = 1.0
-    limit_margin: float = 0.02
     config_limit_gain: float = 0.5
     damping: float = 1e-12
-    speed_fraction: float = 0.97
-
-    def __post_init__(self) -> None:
-        check_speed_fraction(self.speed_fraction)
 
 
 def _task_costs(robot: RobotModel, rows: tuple[int, ...], rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

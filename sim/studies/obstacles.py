@@ -107,7 +107,7 @@ def compute(cell: Cell) -> tuple[dict[str, Any], bytes]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the scenes (module docstring) and write the report; returns the exit code (2: bad input)."""
-    p = OneLineParser(prog=PROG, description=(__doc__ or "").splitlines()[0])
+    p = OneLineParser(prog=PROG, description=" ".join((__doc__ or "").split("\n\n")[0].split()))
     p.add_argument("--placements", type=int, default=50, help="scenes, the user's case first (default 50)")
     p.add_argument("--cache", help="folder of the cached runs (default out/panda_obstacles; --quick: "
                                     "out/obstacles_arm-quick)")

@@ -46,7 +46,7 @@ def row(task: str, scenario: str, m: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run every task (module docstring) and write the report; returns the exit code."""
-    p = OneLineParser(prog=PROG, description=(__doc__ or "").splitlines()[0])
+    p = OneLineParser(prog=PROG, description=" ".join((__doc__ or "").split("\n\n")[0].split()))
     p.add_argument("--out", help="the runs' folders (default out/robottasks_arm; --quick: out/robottasks_arm-quick)")
     p.add_argument("--report", help="the report (default reports/robottasks_arm.md; --quick: "
                                      "out/robottasks_arm-quick/robottasks_arm.md)")

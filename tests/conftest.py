@@ -59,8 +59,9 @@ def spiral_field_2d() -> VelocityField:
 # The test files that take longest, longest first: pytest-xdist (``--dist loadfile``, pyproject.toml)
 # hands files to the workers in collection order, so these start first and the short files fill
 # in after them, instead of one long file running alone at the end.
-LONGEST_FIRST = ("test_workers", "test_examples", "test_bench", "test_ray_cluster", "test_contraction",
-                 "test_reliability", "test_certify", "test_pose", "test_arm_clearance", "test_signals")
+LONGEST_FIRST = ("test_examples", "test_ray_cluster", "test_workers", "test_certify", "test_bench", "test_contraction",
+                 "test_arm_clearance", "test_stable_node", "test_pose", "test_reliability", "test_obstacles",
+                 "test_sim_obstacles", "test_relative", "test_signals", "test_pages")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

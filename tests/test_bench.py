@@ -144,7 +144,10 @@ def test_dmp_reproduces_angle_and_stays_at_the_goal() -> None:
 
 # ---------------------------------------------------------------- the quick run
 
-QUICK_ARGV = ["bench", "lasa", "--learner", "contraction,dmp", "--quick", "--split", "in-sample", "--workers", "2"]
+# fewer perturbed starts and a coarser grid than the protocol's (the options of the command, checked here)
+FEW_STARTS = ["--ring-points", "2", "--box-points", "16", "--spurious-grid", "12"]
+QUICK_ARGV = ["bench", "lasa", "--learner", "contraction,dmp", "--quick", "--split", "in-sample", "--workers", "2",
+              *FEW_STARTS]
 
 
 @pytest.fixture(scope="module")
@@ -175,14 +178,15 @@ def test_results_json_schema(quick: dict[str, Any]) -> None:
     assert {"suite", "protocol", "protocol_hash", "learners", "shapes", "splits", "seeds", "quick", "summary", "run",
             "results"} <= set(r)
     assert r["shapes"] == list(QUICK_UNITS) and r["seeds"] == [0] and r["quick"] is True
-    assert r["protocol"] == P.LasaProtocol().to_dict() and r["splits"] == ["in-sample"]
+    assert r["protocol"] == P.LasaProtocol(ring_points=2, box_points=16, spurious_grid=12).to_dict()
+    assert r["splits"] == ["in-sample"]
     assert [f"{c['learner']}__{c['shape']}__seed{c['seed']}" for c in r["results"]] == QUICK_CELLS
     for c in r["results"]:
         assert set(c["metrics"]) == set(METRICS) and c["split"] == "in-sample" and c["fold"] is None
         assert all(isinstance(v, float) and v >= 0 for v in c["metrics"].values())
         assert all(len(v) == 7 for v in c["per_demo"].values())
         assert c["train_demos"] == c["scored_demos"] == list(range(7))
-        assert c["convergence"]["n_starts"] == 127 and c["convergence"]["radius_mm"] == 1.0
+        assert c["convergence"]["n_starts"] == 7 + 7 * 2 + 16 and c["convergence"]["radius_mm"] == 1.0
         assert c["train_time_s"] > 0 and c["step_time_us"] > 0
     for learner in ("contraction", "dmp"):
         s = r["summary"][learner]
@@ -197,7 +201,7 @@ def test_contraction_converges_from_every_start_and_fits_angle(quick: dict[str, 
     for shape, c in cells.items():
         assert c["convergence"]["rate"] == 1.0, (shape, c["convergence"])
         assert c["integrators"] == {"reproduce": "dopri5", "rollouts": "dopri5", "grid": "dopri5"}
-        assert c["convergence"]["spurious_grid"] == 0.0 and c["convergence"]["n_grid"] == 35 * 35
+        assert c["convergence"]["spurious_grid"] == 0.0 and c["convergence"]["n_grid"] == 12 * 12
         # the equilibria search (lfd.equilibria) finds nothing but the goal in a contracting field
         assert c["equilibria"]["clean"] and c["equilibria"]["spurious_attractors"] == 0
         assert c["equilibria"]["goal_fraction"] == 1.0
@@ -240,7 +244,8 @@ def test_same_seed_gives_the_same_numbers(quick: dict[str, Any], tmp_path: Path)
     runs = []
     for name in ("a", "b"):
         argv = ["bench", "lasa", "--learner", "contraction", "--quick", "--shapes", "Angle", "--split", "in-sample",
-                "--workers", "1", "--json", str(tmp_path / f"{name}.json"), "--report", str(tmp_path / f"{name}.md")]
+                "--workers", "1", "--json", str(tmp_path / f"{name}.json"), "--report", str(tmp_path / f"{name}.md"),
+                *FEW_STARTS]
         assert main(argv) == 0
         runs.append(json.loads((tmp_path / f"{name}.json").read_text())["results"][0])
     first = next(c for c in quick["json"]["results"]
@@ -258,7 +263,8 @@ def test_same_seed_gives_the_same_numbers(quick: dict[str, Any], tmp_path: Path)
 @pytest.fixture(scope="module")
 def both(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """Both splits of contraction and the DMP on Angle (--quick)."""
-    argv = ["bench", "lasa", "--learner", "contraction,dmp", "--quick", "--shapes", "Angle", "--workers", "2"]
+    argv = ["bench", "lasa", "--learner", "contraction,dmp", "--quick", "--shapes", "Angle", "--workers", "2",
+            *FEW_STARTS]
     return bench_run(tmp_path_factory.mktemp("lasa_both"), argv, "both.md")
 
 

@@ -222,7 +222,8 @@ def test_position_ik_reports_an_unreachable_target(robots: dict[str, RobotModel]
 @pytest.mark.parametrize(("kwargs", "message"), [
     ({"backend": "jacobian"}, r"^unknown IK backend 'jacobian'; known: dls, pink$"),
     ({"rows": (0, 7)}, r"^IK rows must be distinct twist rows in 0\.\.5"),
-    ({"gain": 2.0}, r"^unknown gain\(s\) gain for IK backend 'dls'; known: posture_gain, limit_margin, speed_fraction, damping, "),
+    ({"gain": 2.0}, r"^unknown gain\(s\) gain for IK backend 'dls'; known: posture_gain, limit_margin, "
+                    r"speed_fraction, damping, "),
 ])
 def test_ik_option_errors(robots: dict[str, RobotModel], kwargs: dict, message: str) -> None:
     with pytest.raises(RobotError, match=message):

@@ -190,6 +190,7 @@ def test_the_benchmark_on_the_cluster_gives_the_local_records_and_resumes(
 
     def argv(name: str, *extra: str) -> list[str]:
         return ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle,Sine", "--split", "in-sample",
+                "--ring-points", "2", "--box-points", "16", "--spurious-grid", "12",
                 "--json", str(tmp_path / name / "r.json"), "--report", str(tmp_path / name / "r.md"), *extra]
 
     on_ray = ("--executor", "ray", "--address", cluster["address"], "--workers", "2")

@@ -145,7 +145,8 @@ def test_bench_command_recomputes_a_truncated_cell_with_one_warning_line(tmp_pat
     the JSON written, the same numbers as the clean run."""
     cache = tmp_path / "C"
     argv = ["bench", "lasa", "--learner", "dmp", "--quick", "--shapes", "Angle", "--split", "in-sample", "--workers",
-            "1", "--cache", str(cache), "--json", str(tmp_path / "r.json"), "--report", str(tmp_path / "r.md")]
+            "1", "--ring-points", "2", "--box-points", "16", "--cache", str(cache), "--json", str(tmp_path / "r.json"),
+            "--report", str(tmp_path / "r.md")]
     assert main(argv) == 0
     clean = json.loads((tmp_path / "r.json").read_text())["results"]
     capsys.readouterr()

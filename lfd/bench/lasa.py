@@ -33,7 +33,10 @@ from lfd.io import atomic_write
 HELP = "the LASA handwriting benchmark (30 shapes)"
 UNIT = "shape"
 QUICK_UNITS: tuple[str, ...] = ("Angle", "Sine", "GShape")
-PROTOCOL_OPTIONS: tuple[tuple[str, str, str], ...] = ()
+PROTOCOL_OPTIONS: tuple[tuple[str, str, str], ...] = (
+    ("--ring-points", "ring_points", "perturbed starts on the ring around each demo start (default 8)"),
+    ("--box-points", "box_points", "perturbed starts in the demos' box grown by half (default 64)"),
+    ("--spurious-grid", "spurious_grid", "starts per side of the spurious-attractor grid (default 35)"))
 # Each metric under its own name, in report order; formulas in docs/benchmark.md ("Reproduction metrics").
 METRICS: tuple[str, ...] = ("dtw", "dtw_per_sample", "rmse", "chamfer_dtwd", "chamfer_dtwd_std", "frechet",
                             "swept_area", "velocity_rmse", "cosine_error")

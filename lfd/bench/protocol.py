@@ -60,8 +60,8 @@ class LasaProtocol:
     timing_calls: int = 500          # single-point evaluations timed per repeat (5 repeats, median)
 
     def __post_init__(self) -> None:
-        check_ints(self, (("ring_points", 0, None), ("box_points", 0, None), ("dtw_step", 1, None),
-                          ("horizon_stride", 1, None), ("spurious_grid", 2, None)), error=ConfigError)
+        check_ints(self, (("ring_points", 0, 10_000), ("box_points", 0, 100_000), ("dtw_step", 1, None),
+                          ("horizon_stride", 1, None), ("spurious_grid", 2, 1000)), error=ConfigError)
         if not (self.radius_mm > 0 and self.horizon_factor > 0 and self.ring_radius >= 0):
             raise ConfigError("radius_mm and horizon_factor must be positive, ring_radius >= 0")
 

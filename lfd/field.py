@@ -387,7 +387,14 @@ class VelocityField(Guarantees):
         """Integrate B starts at once (``lfd.integrate.rollout``): x0 (B, d) or (d,), user units, over
         t (T,), s, with ``method`` of ``lfd.integrate.SOLVERS``; fixed-step solvers take ``substeps``
         steps per interval of t (an adaptive solver refuses substeps > 1: ValueError). Returns x
-        (B, T, d), or (T, d) for one start."""
+        (B, T, d), or (T, d) for one start. ``rk4`` with one substep on at most
+        ``lfd.integrate.POINTWISE_MAX`` starts runs each through the compiled single-point path."""
+        xb = np.asarray(x0, dtype=np.float64)
+        if method == "rk4" and substeps == 1 and 0 < len(np.atleast_2d(xb)) <= integrate.POINTWISE_MAX \
+                and xb.shape[-1] == self.dim and np.ndim(t) == 1 and len(t) >= 1:
+            fn = cached_single_point_evaluator(self)
+            runs = np.stack([integrate.rk38_grid(fn, x, t) for x in np.atleast_2d(xb)])
+            return runs[0] if xb.ndim == 1 else runs
         return integrate.rollout(self, x0, t, method, substeps)
 
     def runner(self, start: np.ndarray | None, dt: float) -> Runner:

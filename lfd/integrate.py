@@ -4,17 +4,17 @@ Every rollout of the package goes through this module:
 
 - ``SOLVERS``: the torchdiffeq methods we accept, each marked fixed-step or adaptive (as
   torchdiffeq keeps its own ``SOLVERS``), with ``FIXED_STEP`` and ``ADAPTIVE`` derived from it.
-- ``odeint_kwargs``: the keyword arguments of ``torchdiffeq.odeint`` for a method, a step or
-  ``substeps`` steps per output interval (fixed-step) or tolerances (adaptive). The NODE learner's
-  batched training loop builds its solver arguments here too.
+- ``odeint_kwargs``: ``torchdiffeq.odeint``'s keyword arguments for a method, a step or ``substeps``
+  steps per output interval (fixed-step) or tolerances (adaptive); NODE training uses it too.
 - ``solve``: one batched torchdiffeq solve of dy/dt = f(t, y); ``rollout`` wraps it for a field in
   user units, ``rollout_sample_units`` for demos on different uniform time grids at once.
+- ``rk38_grid`` and ``rk38_phase_grid``: torchdiffeq's ``rk4`` on ONE point in numpy, through a
+  field's compiled single-point path, for rollouts of a few starts (``POINTWISE_MAX``).
 - ``rk4`` and ``rk4_phase``: classic Runge-Kutta on ONE point in numpy (no torch), for control loops
   that call a field's ``single_point_evaluator`` thousands of times; ``rk4_step`` is their step, shared with the
   obstacle-avoiding field's batched numpy rollout.
 
-A field whose flow has a closed form (``ContractionField.closed_form_rollout``, the paper's
-Eq. (5) solved exactly through Eq. (C4)) is the one special case that needs no solver.
+A field with a closed-form flow (``ContractionField.closed_form_rollout``, Eq. (C4)) needs no solver.
 
 The solvers discretise the paper's Eq. (5); torchdiffeq's ``rk4`` is the 3/8-rule variant, ``rk4``
 here the classic scheme of the paper's Eq. (8) (both of order 4).
@@ -55,9 +55,13 @@ class TorchField(Protocol):
         ...
 
 __all__ = [
-    "ADAPTIVE", "FIXED_STEP", "SOLVERS", "Solver", "check_method", "odeint_kwargs", "rk4", "rk4_phase",
-    "rk38_phase_grid", "rk4_step", "rollout", "rollout_sample_units", "solve",
+    "ADAPTIVE", "FIXED_STEP", "POINTWISE_MAX", "SOLVERS", "Solver", "check_method", "odeint_kwargs", "rk4",
+    "rk4_phase", "rk38_grid", "rk38_phase_grid", "rk4_step", "rollout", "rollout_sample_units", "solve",
 ]
+
+#: ``rk4`` rollouts of at most this many starts run point by point through the compiled single-point
+#: path (``rk38_grid``: torchdiffeq's steps to round-off), more at once through torch
+POINTWISE_MAX = 32
 
 
 @dataclass(frozen=True)
@@ -396,15 +400,15 @@ def rk4_phase(fn: Callable[[np.ndarray, float], tuple[np.ndarray, float]], x0: n
     return xs, ss
 
 
-def rk38_phase_grid(fn: Callable[[np.ndarray, float], tuple[np.ndarray, float]], x0: np.ndarray, t: np.ndarray,
-                    step: float | None = None, s0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """torchdiffeq's ``rk4`` (the 3/8 rule) of a phase field on one point, in numpy: the same
-    steps, grid and output interpolation as ``solve`` with ``odeint_kwargs("rk4", step=step,
+def rk38_grid(f: Callable[[np.ndarray], np.ndarray], y0: np.ndarray, t: np.ndarray,
+              step: float | None = None) -> np.ndarray:
+    """torchdiffeq's ``rk4`` (the 3/8 rule) of dy/dt = f(y) on one point, in numpy: the same steps,
+    grid and output interpolation as ``solve`` with ``odeint_kwargs("rk4", step=step,
     interp="cubic")`` (``step`` None: steps on t itself), so the two agree to round-off.
 
-    fn : (x (d,), s) -> (dx/dt (d,), ds/dt), e.g. a tracking field's ``phase_point_fn``;
-    x0 : (d,); t : (T,) increasing output times, s; s0 : the initial phase.
-    Returns x (T, d) and s (T,).
+    f : y (n,) -> dy/dt (n,), a fresh array (a field's ``single_point_evaluator``); y0 : (n,);
+    t : (T,) increasing output times, s. Returns y (T, n); non-finite values pass through silently,
+    as in the torch path.
     """
     t = np.asarray(t, dtype=np.float64)
     if step is None:
@@ -412,6 +416,36 @@ def rk38_phase_grid(fn: Callable[[np.ndarray, float], tuple[np.ndarray, float]],
     else:
         grid = np.arange(int(math.ceil((t[-1] - t[0]) / step + 1))) * step + t[0]
         grid[-1] = t[-1]
+    y0 = np.array(y0, dtype=np.float64)
+    out = np.empty((len(t), len(y0)))
+    out[0] = y0
+    j, third = 1, 1.0 / 3.0
+    with np.errstate(all="ignore"):
+        for t0, t1 in zip(grid[:-1], grid[1:]):
+            dt = t1 - t0
+            k1 = f(y0)
+            k2 = f(y0 + dt * k1 * third)
+            k3 = f(y0 + dt * (k2 - k1 * third))
+            k4 = f(y0 + dt * (k1 - k2 + k3))
+            y1 = y0 + (k1 + 3.0 * (k2 + k3) + k4) * dt * 0.125
+            if j < len(t) and t1 >= t[j]:
+                f1 = f(y1) if step is not None else None
+                while j < len(t) and t1 >= t[j]:
+                    if f1 is None:
+                        out[j] = y1
+                    else:      # torchdiffeq's cubic Hermite interpolation between the grid points
+                        h = (t[j] - t0) / dt
+                        out[j] = ((1 + 2 * h) * (1 - h) * (1 - h) * y0 + h * (1 - h) * (1 - h) * dt * k1
+                                  + h * h * (3 - 2 * h) * y1 + h * h * (h - 1) * dt * f1)
+                    j += 1
+            y0 = y1
+    return out
+
+
+def rk38_phase_grid(fn: Callable[[np.ndarray, float], tuple[np.ndarray, float]], x0: np.ndarray, t: np.ndarray,
+                    step: float | None = None, s0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """``rk38_grid`` of a phase field (x, s) on one point: fn (x (d,), s) -> (dx/dt (d,), ds/dt), e.g.
+    a tracking field's ``phase_point_fn``; x0 : (d,); s0 : the initial phase. Returns x (T, d), s (T,)."""
     d = len(x0)
 
     def f(y: np.ndarray) -> np.ndarray:
@@ -420,26 +454,5 @@ def rk38_phase_grid(fn: Callable[[np.ndarray, float], tuple[np.ndarray, float]],
         out[:d], out[d] = v, sd
         return out
 
-    y0 = np.append(np.asarray(x0, dtype=np.float64), float(s0))
-    out = np.empty((len(t), d + 1))
-    out[0] = y0
-    j, third = 1, 1.0 / 3.0
-    for t0, t1 in zip(grid[:-1], grid[1:]):
-        dt = t1 - t0
-        k1 = f(y0)
-        k2 = f(y0 + dt * k1 * third)
-        k3 = f(y0 + dt * (k2 - k1 * third))
-        k4 = f(y0 + dt * (k1 - k2 + k3))
-        y1 = y0 + (k1 + 3.0 * (k2 + k3) + k4) * dt * 0.125
-        if j < len(t) and t1 >= t[j]:
-            f1 = f(y1) if step is not None else None
-            while j < len(t) and t1 >= t[j]:
-                if f1 is None:
-                    out[j] = y1
-                else:      # torchdiffeq's cubic Hermite interpolation between the grid points
-                    h = (t[j] - t0) / dt
-                    out[j] = ((1 + 2 * h) * (1 - h) * (1 - h) * y0 + h * (1 - h) * (1 - h) * dt * k1
-                              + h * h * (3 - 2 * h) * y1 + h * h * (h - 1) * dt * f1)
-                j += 1
-        y0 = y1
-    return out[:, :d], out[:, d]
+    y = rk38_grid(f, np.append(np.asarray(x0, dtype=np.float64), float(s0)), t, step)
+    return y[:, :d], y[:, d]

@@ -289,13 +289,12 @@ def test_pointwise_rollouts_are_torchdiffeqs_rk4_to_round_off(spiral: lfd.DemoSe
     import torch
 
     from lfd import integrate
-    from lfd.learners import tracking
 
     f = fields["K=3"]
     x0 = spiral.x[:3, 0] + np.array([[0.02, -0.01], [0.0, 0.03], [-0.04, 0.0]])
     t = np.linspace(0.0, 1.2 * float(f.duration), 157)
     xs, ss = f.rollout_with_phase(x0, t, step=step, s0=np.array([0.0, 0.3, 0.9]))
-    assert len(x0) <= tracking.POINTWISE_MAX
+    assert len(x0) <= integrate.POINTWISE_MAX
     opts = integrate.odeint_kwargs("rk4", step=step, t=t, interp=None if step is None else "cubic")
     delta = f.start_offset(x0)
     with torch.no_grad():

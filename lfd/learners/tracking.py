@@ -45,7 +45,6 @@ from lfd.validate import check_bools, check_ints, check_positive
 DEFAULT_RATE = 3.0            # K, 1/s
 ERROR_FLOOR = 1e-5            # normalised units: Eq. (T5) is checked as |e(t)| <= bound + floor (RK4 error)
 PHASE_END = 0.01              # Eq. (T4): the phase slows linearly over its last 1% and stops at 1 exactly
-POINTWISE_MAX = 32            # rollouts of at most this many starts go point by point through the compiled field
 CONTRACTION_PROPERTY = (
     "for any phase law s(t), the tracking error e = x - r(s) obeys de/dt = -K e, so "
     "|x(t) - r(s(t))| = |x(0) - r(0)| exp(-K t); for a given phase signal the x-subsystem "
@@ -314,14 +313,14 @@ class TrackingField(PhasedRuns, ContractingField):
         continuing a run, e.g. after a kick). Returns x, shape (B, T, d) (or (T, d)), user units,
         and s, shape (B, T) (or (T,)). Fixed-step solvers take ``substeps`` steps per interval of t,
         or steps of ``step`` seconds if given (then outputs are interpolated: use it for irregular t).
-        ``rk4`` with one substep on at most ``POINTWISE_MAX`` starts runs each start through the
+        ``rk4`` with one substep on at most ``lfd.integrate.POINTWISE_MAX`` starts runs each start through the
         compiled ``phase_point_fn`` (``lfd.integrate.rk38_phase_grid``: torchdiffeq's steps to round-off).
         """
         x0 = np.asarray(x0, dtype=np.float64)
         single = x0.ndim == 1
         xb = np.atleast_2d(x0)
         t = np.asarray(t, dtype=np.float64)
-        if method == "rk4" and substeps == 1 and len(xb) <= POINTWISE_MAX:   # the compiled point, per start
+        if method == "rk4" and substeps == 1 and len(xb) <= integrate.POINTWISE_MAX:   # the compiled point, per start
             starts = np.broadcast_to(xb if start is None else np.atleast_2d(start), xb.shape)
             phases = np.broadcast_to(np.asarray(s0, dtype=np.float64), (len(xb),))
             runs = [integrate.rk38_phase_grid(self.phase_point_fn(p), x, t, step, float(s))

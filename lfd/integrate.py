@@ -59,9 +59,7 @@ __all__ = [
     "rk4_phase", "rk38_grid", "rk38_phase_grid", "rk4_step", "rollout", "rollout_sample_units", "solve",
 ]
 
-#: ``rk4`` rollouts of at most this many starts run point by point through the compiled single-point
-#: path (``rk38_grid``: torchdiffeq's steps to round-off), more at once through torch
-POINTWISE_MAX = 32
+POINTWISE_MAX = 32   #: rk4 rollouts of up to this many starts go point by point (``rk38_grid``)
 
 
 @dataclass(frozen=True)

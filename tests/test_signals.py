@@ -108,7 +108,7 @@ def test_signals_exit_130_and_leave_no_file(demos: Path, tmp_path: Path) -> None
             argv = ["train", "--demos", str(demos), "--out", str(out), "--iterations", iters, "--hidden", "4",
                     "--quiet"]
             proc = subprocess.Popen([sys.executable, "-c", CHILD, phase, *argv], stderr=subprocess.PIPE,
-                                    stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env)
+                                    stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env, preexec_fn=as_from_a_terminal)
             children.append((sig, phase, out, proc))
         for sig, phase, out, proc in children:
             line = proc.stderr.readline()  # blocks until the child is in the phase (or dies)
@@ -142,6 +142,14 @@ def _handles_sigterm(pid: int) -> bool:
 
 
 # the file a program writes last, when it ran to its end
+def as_from_a_terminal() -> None:
+    """In the child before it starts: SIGINT and SIGTERM at their defaults, as a shell starts a
+    program. (A process that ignores SIGINT, as a test worker may after some library did so,
+    passes that on, and Python then ignores a Ctrl-C until the program sets its own handler.)"""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 COMPLETE = {"sweep_arm": "summary.json", "lfd": "m.pt", "demo_arm": "metrics.json"}
 # the project's files that run before the handlers are in place: the interpreter's start-up, then these
 BEFORE_HANDLERS = ("lfd/__init__.py", "lfd/errors.py", "lfd/interrupts.py", "lfd/lazy.py", "lfd/cli.py",
@@ -178,7 +186,7 @@ def test_early_signal_exits_130_without_traceback(tmp_path: Path) -> None:
             out = tmp_path / f"out{i}"
             argv = [*argv, "--out", str(out / "m.pt" if prog == "lfd" else out)]
             proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
-                                    env=env)
+                                    env=env, preexec_fn=as_from_a_terminal)
             children.append([prog, delay, sig, out, proc, time.monotonic(), None])
         pending = sorted(children, key=lambda c: c[1])
         for child in pending:  # each signal at its delay after its child's start

@@ -200,6 +200,11 @@ def min_samples(d: int) -> int:
     return MIN_PER_AXIS ** d if d <= GRID_MAX_DIM else MIN_RANDOM_SAMPLES
 
 
+def _per_axis(samples: int, d: int) -> int:
+    """Grid points per axis of ``grid`` for ``samples`` points in d dimensions (0: random samples)."""
+    return max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / d) - 1e-9)) if d <= GRID_MAX_DIM else 0
+
+
 def grid(lo: np.ndarray, hi: np.ndarray, samples: int) -> np.ndarray:
     """A regular grid with m = max(MIN_PER_AXIS, ceil(samples^(1/d))) points per axis, corners included;
     above ``GRID_MAX_DIM`` dimensions the 2^d corners (when there are no more than ``samples``) and
@@ -383,7 +388,7 @@ def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int,
     with torch_threads(1):  # small per-point matrices: one thread is as fast and immune to oversubscription
         n_starts, n_left, clo, chi, traj_finite = escaping_starts(field, lo, hi, rate)
         pts = grid(clo, chi, samples)
-        per_axis = max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / d) - 1e-9)) if d <= GRID_MAX_DIM else 0
+        per_axis = _per_axis(samples, d)
         with np.errstate(all="ignore"):
             xn_all = torch.tensor(field.norm.to_norm(pts))
         bound = -2.0 * rate
@@ -449,7 +454,6 @@ def _certify_lyapunov(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samp
     else:
         verdict, proof = "certified", ("structural (Eqs. (L1)-(L3)): V positive definite and radially unbounded, "
                                        "dV/dt <= -alpha V on all of R^d; the samples confirm the implementation")
-    d = field.dim
     return Certificate(
         learner=field.learner, metric="lyapunov", rate=rate, bound=-1.0, verdict=verdict,
         certified=verdict == "certified", proof=proof, worst=check["worst_ratio"],
@@ -457,8 +461,8 @@ def _certify_lyapunov(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samp
         sampled_metric_min_eig=check["s_lo"] ** 2, sampled_metric_max_eig=check["s_hi"] ** 2,
         metric_bound_a=None, metric_bound_b=None, condition_bound=None, overshoot=check["overshoot"],
         lipschitz_bound=None, rk4_max_step=None, cell_lipschitz=None, cell_radius=math.inf, worst_over_box=None,
-        n_points=check["n_points"], per_axis=max(MIN_PER_AXIS, math.ceil(samples ** (1.0 / d) - 1e-9))
-        if d <= GRID_MAX_DIM else 0, n_invalid=check["n_invalid"], n_starts=n_starts, n_left_box=n_left,
+        n_points=check["n_points"], per_axis=_per_axis(samples, field.dim), n_invalid=check["n_invalid"],
+        n_starts=n_starts, n_left_box=n_left,
         box=[lo.tolist(), hi.tolist()], checked_box=[clo.tolist(), chi.tolist()],
         elapsed_s=time.perf_counter() - t0, lyapunov=check)
 

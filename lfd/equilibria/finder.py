@@ -28,7 +28,7 @@ MAX_STEPS = 20_000
 TOLERANCE = 0.01        # a rollout ends at a point when within this fraction of the box's diagonal
 FTOL = 1e-9             # |f| <= FTOL times the median |f| over the seeds at a root
 MERGE = 1e-5            # roots closer than this fraction of the box's diagonal are one
-REFINE = 8              # a closed orbit is confirmed by rollouts with steps this many times finer
+REFINE = 8              # starts that end neither at the goal nor at a root run again with steps this much finer
 SETTLE = 0.1            # a rollout stops within SETTLE x the tolerance of an attractor (the goal, a root)
 
 
@@ -92,9 +92,9 @@ def _search(field: Field, lo: np.ndarray, hi: np.ndarray, duration: float | None
     steps = int(min(MAX_STEPS, max(STEPS, horizon * radius / STEP_RADIUS)))   # radius: finite, >= 0
     sinks = [p for p, e in zip([goal, *pts], roots.eigenvalues(fn, np.vstack([goal, pts]), lo, hi))
              if classify(e) == "attractor"]
+    sinks_ = np.array(sinks).reshape(-1, len(goal))
     far = _confinement(field, starts, goal)
-    runs = orbits_.rollout(fn, starts, horizon, steps, lo, hi, np.array(sinks).reshape(-1, len(goal)),
-                           SETTLE * reach, far)
+    runs = orbits_.rollout(fn, starts, horizon, steps, lo, hi, sinks_, SETTLE * reach, far)
 
     at_goal = np.linalg.norm(runs.end - goal, axis=1) <= reach
     still = ~runs.escaped & ~at_goal & (runs.travel <= reach)
@@ -116,7 +116,7 @@ def _search(field: Field, lo: np.ndarray, hi: np.ndarray, duration: float | None
     if unresolved.any():   # again with REFINE times finer steps: what the integrator alone made disappears
         idx = np.flatnonzero(unresolved)
         fine = orbits_.rollout(fn, starts[idx], horizon, max(steps, min(steps * REFINE, MAX_STEPS)), lo, hi,
-                               np.array(sinks).reshape(-1, len(goal)), SETTLE * reach, far)
+                               sinks_, SETTLE * reach, far)
         fine_goal = np.linalg.norm(fine.end - goal, axis=1) <= reach
         at_goal[idx[fine_goal]] = True
         escaped[idx] = fine.escaped

@@ -3,9 +3,10 @@
 
 The file is ``<cache_dir>/<learner>-<key>.pt`` with key the first 16 hex digits of
 sha256(JSON of learner, seed, the learner's full config (its defaults filled in, as
-``lfd.learners.effective_options`` gives them) and the sha256 of the demos' t and x arrays, and q
-for poses), so a change to any of them, a changed default included, trains a
-new model (a change of a learner's code alone does not: delete the cache then). Files are written
+``lfd.learners.effective_options`` gives them), the fingerprint of the learner's code
+(``lfd.fingerprint``: its module and every lfd module it imports) and the sha256 of the demos' t and
+x arrays, and q for poses), so a change to any of them, a changed default or an edit of the
+learner's code included, trains a new model. Files are written
 atomically by ``VelocityField.save``; a cached file that cannot be read (corrupt, a failed checksum,
 an old format) is trained again and replaced. An interrupted training is never stored: Ctrl-C
 (or SIGTERM, where the caller turns it into KeyboardInterrupt) propagates as KeyboardInterrupt.
@@ -42,10 +43,12 @@ def cache_key(learner: str, demos: DemoSet, seed: int, options: dict[str, Any]) 
     if demos.q is not None:   # and the chart the pose field is learned in (its goal orientation)
         data.update(np.ascontiguousarray(demos.q, dtype=np.float64).tobytes())
         data.update(np.ascontiguousarray(demos.goal_q, dtype=np.float64).tobytes())
-    from lfd.learners import effective_options
+    from lfd.fingerprint import code_fingerprint
+    from lfd.learners import effective_options, learner_module
 
     config = dataclasses.asdict(lfd.get_learner(learner).make_config(**effective_options(learner, demos, options)))
-    spec = {"learner": learner, "seed": int(seed), "config": config, "demos": data.hexdigest()}
+    spec = {"learner": learner, "seed": int(seed), "config": config, "demos": data.hexdigest(),
+            "code": code_fingerprint(learner_module(learner))}
     text = json.dumps(spec, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

@@ -367,7 +367,7 @@ class VelocityField(Guarantees):
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """dx/dt, same shape as x : array, shape (..., d), user units.
 
-        One point, shape (d,), or up to ``SMALL_BATCH`` points take the numpy single-point path
+        One point, shape (d,), or up to ``SMALL_BATCH`` points take the single-point path
         (``single_point_evaluator``, built once per field); a larger batch takes the torch path.
         Both agree to 1e-12 relative.
         """
@@ -408,9 +408,9 @@ class VelocityField(Guarantees):
     def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
         """The fast path for one point, for control loops: ``field(x)`` on x of shape (d,) calls it.
 
-        The default wraps ``_point_fn_normalized`` in the normalisation; it runs the torch path
-        unless a learner overrides ``_point_fn_normalized`` with a faster pure-numpy forward pass,
-        which must agree with the torch path to 1e-12.
+        The default runs the torch module on the one point (a hand-built field); every learner's
+        field overrides it with its compiled kernel (``lfd.learners.mlp_kernel``, ``flow_kernel``,
+        ``stable_kernel``, ``tracking_kernel``), which must agree with the torch path to 1e-12.
 
         Returns
         -------
@@ -418,21 +418,13 @@ class VelocityField(Guarantees):
             x, array of shape (d,), user units -> dx/dt, array of shape (d,), user units; built
             on a snapshot of the weights.
         """
-        fn_n = self._point_fn_normalized()
+        module = self.module
         goal, s = self.norm.goal.copy(), float(self.norm.scale)
 
         def f(x: np.ndarray) -> np.ndarray:
-            return fn_n((np.asarray(x, dtype=np.float64) - goal) / s) * s
-
-        return f
-
-    def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
-        """x_n (d,) -> dx_n/dt (d,); override with a numpy version where speed matters."""
-        module = self.module
-
-        def f(xn: np.ndarray) -> np.ndarray:
+            xn = (np.asarray(x, dtype=np.float64) - goal) / s
             with torch.no_grad():
-                return module(torch.from_numpy(xn).reshape(1, -1))[0].numpy()
+                return module(torch.from_numpy(xn).reshape(1, -1))[0].numpy() * s
 
         return f
 

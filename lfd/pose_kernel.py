@@ -7,9 +7,13 @@ within a few degrees of a half turn, so it agrees with Pinocchio to round-off wh
 exact and is exact there too (tests/test_pose_kernel.py). On them: ``chart_point`` and
 ``chart_rotation`` (Eq. (P1)), ``chart_twist`` (Eq. (P3)) and ``quaternion_rotation`` (a unit
 quaternion's matrix, as Pinocchio's ``Quaternion.normalized().toRotationMatrix()``), each one call
-from Python; ``sim._control_kernel`` inlines ``log3`` and ``jexp3`` into the arm's control step.
+from Python; ``sim.control._control_kernel`` inlines ``log3`` and ``jexp3`` into the arm's control step.
 Compiled once per machine (``cache=True``); imported on first use (``lfd.pose``), so ``import lfd``
 never pays for numba.
+
+Written once: these kernels are the only single-pose chart maps in this repository. Batches
+(``PoseChart.to_chart``, ``PoseChart.rotations``) go through Pinocchio's ``log3`` and ``exp3``, the
+library these kernels follow and the tests' reference, not a second implementation.
 """
 
 from __future__ import annotations

@@ -202,7 +202,7 @@ def _is_planar(pin_model: pin.Model, q: np.ndarray) -> bool:
 
 def _resolve_visual(uri: str, urdf_dir: Path) -> Path:
     try:
-        return sources._resolve_uri(uri, urdf_dir)
+        return sources.resolve_uri(uri, urdf_dir)
     except RobotError as e:
         raise ValueError(str(e)) from None
 

@@ -34,7 +34,7 @@ class RobotModel:
     actuation : str
         ``"position"`` (a PD servo with gravity compensation per arm joint) or ``"torque"`` (a motor per
         arm joint, ctrl = joint torque): what ``load_robot`` built into the scene, and the one source
-        the simulation (``sim.controller``, ``sim.Experiment``) reads it from.
+        the simulation (``sim.control.controller``, ``sim.Experiment``) reads it from.
     """
 
     name: str

@@ -2,7 +2,7 @@
 
 MuJoCo (and dm_control's renderer) pick their GL back-end from ``MUJOCO_GL`` when they are
 imported, and a bad or missing back-end ends the import. A robot needs no rendering, so the
-imports run with ``MUJOCO_GL=disable``; ``sim.gl`` chooses and checks the back-end where videos are
+imports run with ``MUJOCO_GL=disable``; ``sim.media.gl`` chooses and checks the back-end where videos are
 rendered.
 """
 

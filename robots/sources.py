@@ -34,8 +34,27 @@ def source_kind(path: Path) -> str:
     raise RobotError(f"unsupported robot file '{path}': expected .urdf or .xml (MJCF)")
 
 
-def _resolve_uri(uri: str, urdf_dir: Path) -> Path:
-    """A URDF mesh filename as a file: package://PKG/rest is looked up in the ancestors of the URDF's folder."""
+def resolve_uri(uri: str, urdf_dir: Path) -> Path:
+    """A URDF mesh filename as a file: package://PKG/rest is looked up in the ancestors of the URDF's folder.
+
+    Parameters
+    ----------
+    uri : str
+        The filename as the URDF gives it: ``package://PKG/rest``, ``file://path``, or a path (relative
+        to the URDF's folder, or absolute).
+    urdf_dir : Path
+        The folder of the URDF.
+
+    Returns
+    -------
+    Path
+        The file (not checked to exist, except for ``package://``).
+
+    Raises
+    ------
+    RobotError
+        A ``package://`` file that no ancestor folder holds.
+    """
     if uri.startswith("file://"):
         return Path(uri[len("file://"):])
     if uri.startswith("package://"):
@@ -79,7 +98,7 @@ def urdf_spec(path: Path) -> tuple[mujoco.MjSpec, dict[str, bytes]]:
     assets: dict[str, bytes] = {}
     taken: dict[Path, str] = {}
     for mesh in root.iter("mesh"):
-        mesh.set("filename", _asset_name(_resolve_uri(mesh.get("filename", ""), path.parent), assets, taken))
+        mesh.set("filename", _asset_name(resolve_uri(mesh.get("filename", ""), path.parent), assets, taken))
     for old in root.findall("mujoco"):
         root.remove(old)
     block = ET.Element("mujoco")

@@ -5,10 +5,10 @@ With no flags: trains (or takes from the model cache) a NODE and a contraction f
 demos, runs both on the Panda unperturbed, from a start 2 cm off the demo's and with a 20 N push,
 and writes one MP4 per run, its time series (.npz), figures (.png) and metrics.json into a fresh
 folder out/demo_arm_YYYYmmdd-HHMMSS/ (see --help). The job is the library's
-(``sim.pipeline.run_job``); its flags are ``sim.cli``'s, also installed as ``lfd-demo-arm``.
+(``sim.run.pipeline.run_job``); its flags are ``sim.run.cli``'s, also installed as ``lfd-demo-arm``.
 """
 
 if __name__ == "__main__":  # Ctrl-C and SIGTERM handled from here on (lfd.interrupts)
     from lfd.interrupts import run_script
 
-    run_script(__file__, "sim.cli")
+    run_script(__file__, "sim.run.cli")

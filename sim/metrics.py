@@ -99,7 +99,7 @@ BLOCKED_WINDOW_S = 0.5
 
 def clearance_metrics(t: np.ndarray, clearance: np.ndarray, active: np.ndarray, goal_error_m: float
                       ) -> dict[str, Any]:
-    """Scores of whole-arm clearance (``sim.collision``).
+    """Scores of whole-arm clearance (``sim.scene.collision``).
 
     Parameters
     ----------

@@ -53,6 +53,16 @@ PROBE = """(async () => {
 })()"""
 
 
+def unavailable(reason: str) -> None:
+    """Skip a browser test for ``reason``, or fail it under CI (``$CI`` is ``true``, as .ci/run and CI
+    services set it), where Chromium is installed and a skipped browser test would pass unseen."""
+    import pytest
+
+    if os.environ.get("CI", "").lower() == "true":
+        pytest.fail(f"{reason}; under CI the browser tests must run, not skip")
+    pytest.skip(reason)
+
+
 def find_chromium() -> str | None:
     """The Chromium executable (Debian's ``chromium`` package), or None."""
     for name in ("chromium", "chromium-browser"):

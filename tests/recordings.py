@@ -4,7 +4,9 @@ A recording is the tool's pose sampled at ``rate`` Hz: standing still for ``rest
 minimum-jerk reach of ``motion_s`` s along a bent path (30 cm across, 8 cm of bend) while turning
 60 degrees, optionally stopping halfway for ``pause_s`` s, then standing still for ``rest_end`` s;
 white noise on positions (m) and orientations (deg) if asked. ``write`` stores recordings as CSV,
-NPZ (one array per demo: t0, x0, q0, t1, ...) or one MCAP bag, the demos 100 s apart.
+NPZ (one array per demo: t0, x0, q0, t1, ...) or one MCAP bag, the demos 100 s apart;
+``write_positions`` stores demos of positions alone (CSV demo,t,x1..xd or NPZ t0, x0, ...).
+``ode_spiral`` is torchdiffeq's example spiral, a motion that slows down without ever stopping.
 """
 
 from __future__ import annotations
@@ -73,6 +75,34 @@ def kinesthetic(rate: float = 100.0, rest_start: float = 0.0, rest_end: float = 
     rot = Rotation.from_euler("z", turn_deg, degrees=True) * turning * Rotation.from_euler("x", 180.0, degrees=True)
     rot = Rotation.from_rotvec(rng.normal(0.0, np.radians(noise_deg), (len(t), 3))) * rot
     return Recording(t, x, rot.as_quat(scalar_first=True))
+
+
+def ode_spiral() -> tuple[np.ndarray, np.ndarray]:
+    """torchdiffeq's examples/ode_demo.py spiral: dy/dt = y^3 A (y a row, the cube elementwise),
+    A = [[-0.1, 2.0], [-2.0, -0.1]], y0 = (2, 0), at t = linspace(0, 25, 1000): t (1000,), y (1000, 2)."""
+    from scipy.integrate import solve_ivp
+
+    a = np.array([[-0.1, 2.0], [-2.0, -0.1]])
+    t = np.linspace(0.0, 25.0, 1000)
+    sol = solve_ivp(lambda _t, y: (y ** 3) @ a, (0.0, 25.0), [2.0, 0.0], method="DOP853", t_eval=t,
+                    rtol=1e-11, atol=1e-13)
+    return t, sol.y.T.copy()
+
+
+def write_positions(kind: str, path: Path, ts: list[np.ndarray], xs: list[np.ndarray]) -> str:
+    """Demos of positions, times ts[i] (T_i,) and positions xs[i] (T_i, d), as a ``kind`` file (csv,
+    npz) at ``path`` + suffix; returns its path."""
+    if kind == "csv":
+        d = xs[0].shape[1]
+        lines = ["demo,t," + ",".join(f"x{j + 1}" for j in range(d))]
+        lines += [f"{i},{float(tk)!r}," + ",".join(repr(float(v)) for v in xk)
+                  for i, (t, x) in enumerate(zip(ts, xs)) for tk, xk in zip(t, x)]
+        path = path.with_suffix(".csv")
+        path.write_text("\n".join(lines) + "\n")
+        return str(path)
+    path = path.with_suffix(".npz")
+    np.savez(path, **{f"{k}{i}": v for i, (t, x) in enumerate(zip(ts, xs)) for k, v in (("t", t), ("x", x))})
+    return str(path)
 
 
 def write(kind: str, path: Path, demos: list[Recording]) -> str:

@@ -1,4 +1,4 @@
-"""Whole-arm clearance: the collision dampers (sim.collision), the IK QP (robots.ik.constrained),
+"""Whole-arm clearance: the collision dampers (sim.scene.collision), the IK QP (robots.ik.constrained),
 the hand margin, ``blocked``, and the user's case of a small sphere on the path of the Panda."""
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from robots import load_robot
 from robots.errors import RobotError
 from robots.ik.constrained import ConstrainedIK, QpGains
 from robots.kinematics import Kinematics
-from sim.collision import ArmClearance, Clearance, hand_margin_m
 from sim.errors import SimError
-from sim.obstacles import obstacle_contacts
+from sim.scene.collision import ArmClearance, Clearance, hand_margin_m
+from sim.scene.obstacles import obstacle_contacts
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -241,7 +241,7 @@ def test_blocked_runs_are_said_on_stderr(tmp_path, monkeypatch, capsys) -> None:
     """Without the hand margin (patched to 0) the job takes the tool point to a goal the fingers
     cannot reach: one ``blocked:`` line on stderr, ``blocked`` in the run's metrics, no contact. With
     the margin the same obstacle is refused before any work."""
-    import sim.pipeline as pipeline
+    import sim.run.obstacle_runs as obstacle_runs
     from lfd.demos import save_file
     from lfd.errors import ConfigError
 
@@ -253,7 +253,7 @@ def test_blocked_runs_are_said_on_stderr(tmp_path, monkeypatch, capsys) -> None:
                      obstacles=(f"sphere:{float(ob.center[0])!r},{float(ob.center[1])!r},{ob.radius!r}",), quiet=True)
     with pytest.raises(ConfigError, match="within the hand's size"):
         sim.run_job(job)
-    monkeypatch.setattr(pipeline, "hand_margin_m", lambda robot: 0.0)
+    monkeypatch.setattr(obstacle_runs, "hand_margin_m", lambda robot: 0.0)
     report = sim.run_job(job)
     err = capsys.readouterr().err
     lines = [x for x in err.splitlines() if x.startswith("blocked:")]
@@ -270,14 +270,14 @@ def test_runs_that_end_short_with_nothing_in_the_way_say_so(tmp_path, monkeypatc
     metrics, one ``short:`` line on stderr. The blocked run of the test above is not short."""
     from known_fields import sink_field
 
-    import sim.pipeline as pipeline
+    import sim.run.plan as plan
     from lfd.demos import save_file
 
     demos = users_spiral()
     save_file(demos, tmp_path / "spiral3.npz")
     ob = Sphere(demos.goal + 0.8 * demos.extent, 0.03 * demos.extent)
     slow = sink_field(demos, "contraction", a=0.01)
-    monkeypatch.setattr(pipeline, "cached_field", lambda name, *a, **k: (slow, tmp_path / "slow.pt", False))
+    monkeypatch.setattr(plan, "cached_field", lambda name, *a, **k: (slow, tmp_path / "slow.pt", False))
     job = sim.ArmJob(robot="panda", learners=("contraction",), demos=str(tmp_path / "spiral3.npz"),
                      scenarios=("none",), videos=False, plots=False, out=str(tmp_path / "out"),
                      obstacles=(f"sphere:{float(ob.center[0])!r},{float(ob.center[1])!r},{ob.radius!r}",), quiet=True)

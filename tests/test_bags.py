@@ -102,7 +102,7 @@ def test_a_bag_of_a_directory_is_one_demo_across_a_pause(tmp_path: Path, ref: De
     assert demos.n_demos == 3 and np.array_equal(demos.x, ref.x)
     np.testing.assert_allclose(demos.t, ref.t, rtol=0, atol=1e-12)
     assert demos.notes == (f"bag:{tmp_path}:/pose: demo 1: cut a 2.1 s gap at 1.9 s in its time stamps, across "
-                           "which it barely moved; later times moved back",)
+                           "which it barely moved; later times moved back; 34% of its duration removed",)
 
 
 @pytest.mark.usefixtures("one_thread")

@@ -379,3 +379,92 @@ def test_the_core_does_not_import_ray() -> None:
 
     code = "import sys, lfd, lfd.bench.runner, lfd.commands.bench, lfd.cli; sys.exit('ray' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+# ---------------------------------------------------------------- nothing of a held-out demo leaks
+
+def _bent(demos: Any, fold: int) -> Any:
+    """The demos with demo ``fold``'s interior bent away (its first and last samples kept): positions by a
+    smooth bump of a fifth of the extent, orientations (poses) turned by up to 20 degrees about z."""
+    from lfd.demos import DemoSet
+    from lfd.rotations import from_rotation_vectors
+
+    x = demos.x.copy()
+    s = np.sin(np.linspace(0.0, np.pi, demos.n_samples)) ** 2
+    s[[0, -1]] = 0.0                                                            # both ends exactly kept
+    extent = float(np.max(np.ptp(demos.x.reshape(-1, demos.dim), axis=0)))
+    x[fold] += 0.2 * extent * s[:, None] * np.ones(demos.dim) / np.sqrt(demos.dim)
+    q = None
+    if demos.q is not None:
+        q = demos.q.copy()
+        turn = np.zeros((demos.n_samples, 3))
+        turn[:, 2] = np.radians(20.0) * s
+        for k in range(demos.n_samples):
+            q[fold, k] = from_rotation_vectors(turn[k:k + 1], q[fold, k])[0]
+    return DemoSet(demos.t, x, name=demos.name, q=q, frame=demos.frame)
+
+
+@pytest.mark.parametrize("suite_name,learner", [("lasa", "tracking"), ("lasa", "dmp"), ("lasa", "node"),
+                                                ("robottasks", "tracking"), ("robottasks", "dmp")])
+def test_a_held_out_demo_leaks_nothing_but_its_start_and_end(suite_name: str, learner: str) -> None:
+    """Bend the held-out demo's interior: its reproduction must not move (the model saw only the others),
+    while its score does (the bent demo is what it is scored against)."""
+    from lfd.bench.robottasks import RobotTasksProtocol, RobotTasksSuite
+
+    suite: Any = LasaSuite(P.LasaProtocol()) if suite_name == "lasa" else RobotTasksSuite(RobotTasksProtocol())
+    unit, fold = ("Angle", 3) if suite_name == "lasa" else ("pouring", 4)
+    plain = suite.demos(unit)
+    bent = _bent(plain, fold)
+    assert np.array_equal(bent.x[fold, [0, -1]], plain.x[fold, [0, -1]])
+    extent = float(np.max(np.ptp(plain.x.reshape(-1, plain.dim), axis=0)))
+    assert float(np.max(np.linalg.norm(bent.x[fold] - plain.x[fold], axis=1))) > 0.19 * extent
+    options = suite.quick(learner)
+    runs = []
+    for demos in (plain, bent):
+        suite.demos = lambda unit, demos=demos: demos                       # this suite's data, for this run
+        runs.append(suite.evaluate(suite.cell(learner, unit, 0, fold, options)))
+    (a, ya), (b, yb) = runs
+    assert a["scored_demos"] == [fold] and fold not in a["train_demos"]
+    np.testing.assert_allclose(yb["reproduction"], ya["reproduction"], rtol=0, atol=1e-9)
+    assert b["metrics"]["dtw" if suite_name == "lasa" else "dtw_mm"] > 1.5 * a["metrics"]["dtw" if suite_name == "lasa"
+                                                                                          else "dtw_mm"]
+
+
+# ---------------------------------------------------------------- the cache keys hold the code
+
+@pytest.mark.parametrize("change", ["learner code", "scoring code", "protocol version", "report text"])
+def test_a_cache_from_before_a_change_is_reused_only_when_no_number_can_move(
+        change: str, both: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The run's cached DMP cell is read back as it is; after an edit of the DMP's code or of the
+    code that scores it (a comment appended to lfd/bench/dmp.py or lfd/metrics.py), or a raised
+    protocol version, it is not (the cell is computed again); an edit of the report's text only
+    (lfd/bench/report.py) keeps it."""
+    from lfd import fingerprint
+    from lfd.bench.runner import read_cached
+
+    r = both["json"]
+    protocol = P.LasaProtocol(**{k: v for k, v in r["protocol"].items() if k != "version"})
+    suite = LasaSuite(protocol)
+    cache = both["dir"] / ".cache" / "r"
+    cell = lambda: suite.cell("dmp", "Angle", 0, None, suite.quick("dmp"))   # noqa: E731
+    fingerprint._fingerprint.cache_clear()
+    record, problem = read_cached(cell(), cache)
+    assert problem is None and record is not None and record["learner"] == "dmp"
+    edited = {"learner code": "lfd.bench.dmp", "scoring code": "lfd.metrics", "report text": "lfd.bench.report"}
+    if change == "protocol version":
+        monkeypatch.setattr(P, "PROTOCOL_VERSION", P.PROTOCOL_VERSION + 1)
+    else:
+        source = fingerprint.read_source
+        monkeypatch.setattr(fingerprint, "read_source",
+                            lambda name: source(name) + (b"\n# edited\n" if name == edited[change] else b""))
+    fingerprint._fingerprint.cache_clear()
+    try:
+        again, problem = read_cached(cell(), cache)
+    finally:
+        monkeypatch.undo()
+        fingerprint._fingerprint.cache_clear()
+    assert problem is None
+    if change == "report text":
+        assert again == record
+    else:
+        assert again is None

@@ -16,6 +16,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
+from reference_kernels import bounded_flow_reference
 
 import lfd
 from lfd.errors import ConfigError
@@ -27,7 +28,8 @@ from lfd.learners.contraction import (
     feasible_rate,
     lipschitz_bound,
 )
-from lfd.learners.flows import FACTORED_MIN_DIM, BoundedFlow, bounded_flow_numpy
+from lfd.learners.flow_kernel import flow_point
+from lfd.learners.flows import FACTORED_MIN_DIM, BoundedFlow
 
 WEAK, STRONG = 0.5, 1.0
 
@@ -80,7 +82,9 @@ def far_points(dim: int) -> torch.Tensor:
 # ---------------------------------------------------------------- the flow phi and its bounds
 
 @pytest.mark.parametrize("dim", [2, 3])
-def test_flow_jacobian_inverse_and_numpy_path_agree(dim: int) -> None:
+def test_flow_jacobian_inverse_compiled_and_numpy_paths_agree(dim: int) -> None:
+    """J_phi against autograd, phi^-1, and the compiled phi and J_phi (``flow_point``) and the tests'
+    numpy reference against the torch flow."""
     flow = random_flow(dim, seed=dim, scale=1.0)
     x = torch.randn(7, dim, dtype=torch.float64)
     y, jac = (t.detach() for t in flow.forward_with_jacobian(x))
@@ -90,9 +94,9 @@ def test_flow_jacobian_inverse_and_numpy_path_agree(dim: int) -> None:
     assert float((flow.inverse(y) - x).abs().max()) <= 1e-10 * (1 + float(y.abs().max()))
     params = flow.numpy_params()
     for xi, yi, ji in zip(x.numpy(), y.numpy(), jac.numpy()):
-        yn, jn = bounded_flow_numpy(params, xi)
-        assert np.allclose(yn, yi, rtol=1e-12, atol=1e-12)
-        assert np.allclose(jn, ji, rtol=1e-10, atol=1e-10 * scale)
+        for yn, jn in (bounded_flow_reference(params, xi), flow_point(params, xi)):
+            assert np.allclose(yn, yi, rtol=1e-12, atol=1e-12)
+            assert np.allclose(jn, ji, rtol=1e-10, atol=1e-10 * scale)
 
 
 def test_fresh_flow_is_the_identity() -> None:
@@ -296,17 +300,17 @@ def test_every_start_around_the_demos_converges(weak: ContractionField, strong: 
         assert dist[:, 2].max() < 1e-3
 
 
-# ---------------------------------------------------------------- numpy path, files, determinism
+# ---------------------------------------------------------------- compiled path, files, determinism
 
 @pytest.mark.parametrize("spec", ["spiral", "spiral3d"])
-def test_single_point_call_uses_the_numpy_path_and_equals_the_torch_path(spec: str, weak: ContractionField) -> None:
+def test_single_point_call_uses_the_compiled_path_and_equals_the_torch_path(spec: str, weak: ContractionField) -> None:
     demos = lfd.load_demos(spec)
     field = weak if spec == "spiral" else lfd.train("contraction", demos, progress=False, iterations=20)
     f = field.single_point_evaluator()
     pts = np.random.default_rng(1).uniform(*demos.bounds(1.0), size=(50, demos.dim))
     ref = field(pts)                                   # batched: the torch path
     got = np.stack([f(p) for p in pts])
-    one = np.stack([field(p) for p in pts])           # one point: dispatched to the numpy path
+    one = np.stack([field(p) for p in pts])           # one point: dispatched to the compiled path
     tol = 1e-10 * max(1.0, np.abs(ref).max())
     assert np.abs(got - ref).max() <= tol and np.abs(one - ref).max() <= tol
 

@@ -22,9 +22,9 @@ import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from lfd.demos import robottasks
 from robots import RobotModel, load_robot
+from sim.control.loop import execute
 from sim.errors import SimError
-from sim.loop import execute
-from sim.perturbations import JointVelocityNoise, Push
+from sim.scene.perturbations import JointVelocityNoise, Push
 
 TRACK_TOL_M = 1e-9        # tool path, MuJoCo vs Pinocchio inverse dynamics (they agree to round-off)
 TORQUE_TOL = 1e-9         # N m, M a + c from MuJoCo vs RNEA (they agree to round-off)
@@ -170,7 +170,7 @@ def test_unknown_dynamics_is_a_sim_error() -> None:
 def test_phase_lead_adds_the_command_difference_once_and_resets() -> None:
     """Gains.lead_s: v_k + (lead / dt)(v_k - v_{k-1}), nothing at a run's first step, none by default;
     the fused and the Python path both lead (each once)."""
-    from sim.controller import FieldController, Gains
+    from sim.control.controller import FieldController, Gains
 
     robot, demos = _robot("panda"), _demos()
     placement = sim.Placement.auto(robot, demos.x)

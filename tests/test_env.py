@@ -1,6 +1,6 @@
 """The dm_env / dm_control task: dm_env's own conformance tests on three arms, fresh
 kinematics in the observation, checked actions, random initial states, the joint-limit flag, the
-restorable state, the one-call constructor, agreement with ``sim.loop.execute``, and gymnasium through
+restorable state, the one-call constructor, agreement with ``sim.control.loop.execute``, and gymnasium through
 shimmy (an optional extra; skipped when it is absent).
 
 The fields are hand-made linear sinks (no training), so the tests are fast.
@@ -21,12 +21,12 @@ from known_fields import sink_field
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import Kinematics, RobotModel, load_robot
-from sim.loop import execute
-from sim.task import OBSERVATION_KEYS
+from sim.control.loop import execute
+from sim.control.task import OBSERVATION_KEYS
 
 EPISODE_S = 0.1                   # 50 control steps at 500 Hz
 FK_TOL_M = 1e-9                   # observation vs forward kinematics of the observed joints
-# sim.loop.execute vs a plain dm_env loop: the paths differ only in the FK that feeds the field (Pinocchio
+# sim.control.loop.execute vs a plain dm_env loop: the paths differ only in the FK that feeds the field (Pinocchio
 # in execute, the MuJoCo site in the observation; they agree to round-off) and in float rounding, which
 # this contracting closed loop does not amplify: over 1 s they agree to round-off on all three arms, while
 # an observation from a stale site (kinematics not rerun after the step) is off by tenths of a mm. 1e-9 m
@@ -170,7 +170,7 @@ def test_task_state_restores_the_controller_too() -> None:
     exactly; restoring the physics alone does not (the controller's memory and the push)."""
     field = sink_field(demos())
     # 5 s episode: the Environment's own step counter is not part of the state (module docstring of
-    # sim.task), so the three 0.9 s replays below must fit in one episode without reaching its end
+    # sim.control.task), so the three 0.9 s replays below must fit in one episode without reaching its end
     env = environment("panda", duration_s=5.0, learner_field=field,
                       perturbations=(sim.Push(force_n=20.0, duration_s=0.2, start_s=0.15, seed=1),))
     task, physics = env.task, env.physics
@@ -201,7 +201,7 @@ def test_task_state_restores_the_controller_too() -> None:
         task.set_state(physics, saved[:-1])
 
 
-# ---------------------------------------------------------------- one call, and sim.loop.execute
+# ---------------------------------------------------------------- one call, and sim.control.loop.execute
 def test_make_environment_in_one_call() -> None:
     env = sim.make_environment("panda", demos="spiral", learner_field=None, seed=0)
     ts = env.reset()
@@ -253,8 +253,9 @@ def test_gymnasium_through_shimmy() -> None:
     assert 0.0 <= reward <= 1.0 and not terminated
 
 
-# ---------------------------------------------------------------- the lean step (sim.env.FieldEnvironment)
-LEAN_TOL = 1e-9   # lean step vs sim.loop.execute, and vs dm_control's generic step: round-off (see EXECUTE_TOL_M)
+# ---------------------------------------------------------------- the lean step (sim.control.env.FieldEnvironment)
+# lean step vs sim.control.loop.execute, and vs dm_control's generic step: round-off (see EXECUTE_TOL_M)
+LEAN_TOL = 1e-9
 
 
 def _env_rollout(env, f) -> tuple[np.ndarray, np.ndarray, list]:
@@ -276,8 +277,8 @@ def _env_rollout(env, f) -> tuple[np.ndarray, np.ndarray, list]:
 ], ids=["planar", "panda-push-noise", "panda-servo-push"])
 def test_lean_step_rollout_equals_the_lean_loop(name: str, actuation: str, perts: tuple) -> None:
     """The environment's own step (MuJoCo's tool site, mj_step1 / mj_step2, the task's perturbations)
-    and ``sim.loop.execute`` run the same physics and control: the same tool path and joints."""
-    from sim.env import FieldEnvironment
+    and ``sim.control.loop.execute`` run the same physics and control: the same tool path and joints."""
+    from sim.control.env import FieldEnvironment
 
     field = sink_field(demos())
     env = sim.make_environment(load_robot(name, actuation=actuation), demos=demos(), duration_s=0.6,
@@ -366,8 +367,8 @@ def test_lean_step_reward_and_physics_errors() -> None:
 
 
 def test_a_task_that_overrides_a_hook_gets_dm_controls_step() -> None:
-    from sim.env import FieldEnvironment
-    from sim.task import FieldTrackingTask
+    from sim.control.env import FieldEnvironment
+    from sim.control.task import FieldTrackingTask
 
     class Tagged(FieldTrackingTask):
         def get_observation(self, physics):

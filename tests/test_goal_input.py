@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import load_robot
-from sim.cli import main as demo_arm
+from sim.run.cli import main as demo_arm
 
 
 def _goal_pose(demos: lfd.DemoSet, offset_m: np.ndarray, turn_deg: float, axis: np.ndarray) -> np.ndarray:

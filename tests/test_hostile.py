@@ -322,10 +322,10 @@ def test_cache_retrains_a_corrupt_file_and_never_stores_an_interrupted_one(
 
 @pytest.fixture
 def demo_arm(monkeypatch: pytest.MonkeyPatch, tmp_path: Path):  # type: ignore[no-untyped-def]
-    """The arm job's command line, ``sim.cli`` (what scripts/demo_arm.py runs), on a fresh cache."""
+    """The arm job's command line, ``sim.run.cli`` (what scripts/demo_arm.py runs), on a fresh cache."""
     monkeypatch.setenv("LFD_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)
-    from sim import cli
+    from sim.run import cli
 
     return cli
 
@@ -390,7 +390,7 @@ def test_train_warns_about_millisecond_times_and_self_crossing_demos(
 
 
 def test_video_writer_removes_its_temporary_file_on_interrupt(tmp_path: Path) -> None:
-    from sim.render import write_video
+    from sim.media.render import write_video
 
     def frames():  # type: ignore[no-untyped-def]
         for _ in range(3):
@@ -405,7 +405,7 @@ def test_video_writer_removes_its_temporary_file_on_interrupt(tmp_path: Path) ->
 def test_an_output_set_discards_what_a_failed_job_staged_and_keeps_what_was_there(tmp_path: Path) -> None:
     """A job that fails after writing (e.g. metrics.json cannot be written) leaves no file of its
     own, inside or outside the output folder, and no folder it created; the files in place stay."""
-    from sim.outputs import OutputSet
+    from sim.run.outputs import OutputSet
 
     (tmp_path / "keep").mkdir()
     (tmp_path / "keep" / "old.mp4").write_bytes(b"user's file")
@@ -425,7 +425,7 @@ def test_an_output_folder_is_replaced_whole_or_not_at_all(tmp_path: Path) -> Non
     """--out reuse: refused unless --overwrite; with it, a run that is interrupted leaves the old
     run's files exactly as they were, and one that completes replaces them all (no stale file)."""
     from lfd.errors import ConfigError, OutputError
-    from sim.outputs import OutputSet
+    from sim.run.outputs import OutputSet
 
     out = tmp_path / "D"
     first = OutputSet(out, overwrite=False, inputs={})
@@ -462,7 +462,7 @@ def test_demo_arm_interrupted_while_rendering_keeps_the_previous_run_whole(
         capsys: pytest.CaptureFixture[str]) -> None:
     """The reported case: a run into D, then a second one into D with videos, interrupted while its
     video renders. D still holds exactly the first run's files, metrics.json and npz agreeing."""
-    import sim.experiment
+    import sim.run.experiment
 
     demos = spiral(n_demos=2, n_samples=40, duration=1.0)
     save_file(demos, tmp_path / "d.npz")
@@ -474,8 +474,8 @@ def test_demo_arm_interrupted_while_rendering_keeps_the_previous_run_whole(
     def interrupted(*args, **kwargs):  # type: ignore[no-untyped-def]
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(sim.experiment.Experiment, "render", interrupted)
-    monkeypatch.setattr("sim.gl.require_backend", lambda: None)
+    monkeypatch.setattr(sim.run.experiment.Experiment, "render", interrupted)
+    monkeypatch.setattr("sim.media.gl.require_backend", lambda: None)
     assert demo_arm.main([*base, "--overwrite", "--seed", "1"]) == 130
     assert {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []

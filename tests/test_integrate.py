@@ -111,7 +111,7 @@ def test_sample_units_batch_demos_on_their_own_clocks(spiral_field_2d: VelocityF
 
 def _classic_rk4_reference(f: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, t: np.ndarray,
                            substeps: int) -> np.ndarray:
-    """sim.experiment.integrate as it was: the loop ``lfd.integrate.rk4`` must equal bit for bit."""
+    """sim.run.experiment.integrate as it was: the loop ``lfd.integrate.rk4`` must equal bit for bit."""
     x = np.asarray(x0, dtype=np.float64).copy()
     out = np.empty((len(t), len(x)))
     out[0] = x

@@ -30,7 +30,7 @@ def test_cell_keys_follow_the_modulations_constants(monkeypatch: pytest.MonkeyPa
 
 def test_the_arm_job_gives_obstacle_runs_the_sweeps_horizon() -> None:
     from lfd.bench.obstacles import HORIZON
-    from sim.pipeline import OBSTACLE_TIME_FACTOR
+    from sim.run.pipeline import OBSTACLE_TIME_FACTOR
 
     assert OBSTACLE_TIME_FACTOR == HORIZON
 

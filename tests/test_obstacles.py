@@ -583,7 +583,7 @@ def test_phased_field_steers_toward_its_runs_end() -> None:
 @pytest.mark.parametrize("name", ["spiral", "spiral3d", "lasa:Sshape"])
 def test_random_scenes_are_seeded_and_keep_goal_and_starts_clear(name: str) -> None:
     from lfd.obstacles import random_scene
-    from lfd.obstacles.groups import _group
+    from lfd.obstacles.groups import group
 
     demos = lfd.load_demos(name)
     for seed in range(12):
@@ -591,7 +591,7 @@ def test_random_scenes_are_seeded_and_keep_goal_and_starts_clear(name: str) -> N
         again = random_scene(demos, seed)
         assert [o.describe() for o in scene] == [o.describe() for o in again]
         assert 1 <= len(scene) <= 3 and all(o.dim == demos.dim for o in scene)
-        for u in _group(scene):
+        for u in group(scene):
             assert float(u.geometry(demos.goal[None], 0.0)[0][0]) >= 1.01
             assert float(u.geometry(demos.x[:, 0], 0.0)[0].min()) >= 1.05
         sizes = [o.size - o.margin for o in scene]

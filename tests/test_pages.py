@@ -1,4 +1,4 @@
-"""Results pages (``lfd.pages``; the arm job's ``sim.job_page``, the sweep's
+"""Results pages (``lfd.pages``; the arm job's ``sim.media.job_page``, the sweep's
 ``sim.studies.sweep_page``, ``lfd bench``'s ``lfd.bench.report_page``), opened in headless Chromium
 (tests/browser.py): no console error, no request beyond the page's folder, every video plays, every
 image loads, every number in the tables equals its data file's and is shown rounded right, the best
@@ -6,7 +6,8 @@ of each group marked, every failure said.
 
 Small real runs: the planar arm with a 1.5 s demo and tiny trainings, videos at 160x120; a sweep of
 6 runs; ``lfd bench robottasks`` on one task with two cheap learners. One browser for the module.
-Without Chromium (Debian's ``chromium`` package, which .ci/run installs) the browser tests skip.
+Without Chromium (Debian's ``chromium`` package, which .ci/run installs) the browser tests skip, and
+fail under CI (``$CI`` true).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import Any
 from urllib.parse import unquote
 
 import pytest
-from browser import Browser, find_chromium
+from browser import Browser, find_chromium, unavailable
 
 import sim
 from lfd.bench.lasa import LasaSuite
@@ -28,8 +29,8 @@ from lfd.bench.report_page import bench_failures
 from lfd.cli import main as lfd_main
 from lfd.demos import save_file, spiral
 from lfd.pages import Cell, DataFile, Media, MediaGroup, Page, Table, mark_best, number, pointer, render, text
-from sim.job import ArmJob, PushSpec
-from sim.job_page import run_problems
+from sim.media.job_page import run_problems
+from sim.run.job import ArmJob, PushSpec
 from sim.studies import sweep
 from sim.studies.sweep_page import failure_sentence
 
@@ -89,7 +90,7 @@ def static_check(html: str) -> None:
 def browser() -> Any:
     exe = find_chromium()
     if exe is None:
-        pytest.skip("Chromium is not installed (.ci/run installs Debian's chromium package)")
+        unavailable("Chromium is not installed (.ci/run installs Debian's chromium package)")
     b = Browser(exe)
     yield b
     b.close()
@@ -313,3 +314,12 @@ def test_the_browser_check_catches_a_broken_page(browser: Browser, tmp_path: Pat
     assert [i["width"] for i in found["images"]] == [0, 0]
     assert not found["videos"][0]["played"] and found["videos"][0]["mediaError"] is not None
     assert "http://127.0.0.1:9/x.png" in found["requests"]
+
+
+@pytest.mark.parametrize("ci", ["true", ""])
+def test_a_browser_test_without_chromium_fails_under_ci_and_skips_elsewhere(ci: str,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CI", ci)
+    outcome = pytest.fail.Exception if ci else pytest.skip.Exception
+    with pytest.raises(outcome, match="Chromium is not installed"):
+        unavailable("Chromium is not installed")

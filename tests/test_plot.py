@@ -121,8 +121,8 @@ def test_lfd_plot_marks_and_says_so(spiral: lfd.DemoSet, tmp_path, capsys) -> No
 @pytest.mark.parametrize("loss, written", [([0.5], False), ([1.0, 0.5, 0.2], True)])
 def test_the_arm_job_writes_a_loss_figure_only_for_a_loss_curve(loss: list[float], written: bool, tmp_path,
                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
-    from sim import cli
-    from sim.plots import loss_figure
+    from sim.media.plots import loss_figure
+    from sim.run import cli
 
     short = lfd.spiral(n_demos=2, n_samples=60, duration=1.0)
     field = VelocityField(LinearSink(2), Normalization.from_points(short.x, short.goal), "node", {}, {"loss": loss})
@@ -130,7 +130,7 @@ def test_the_arm_job_writes_a_loss_figure_only_for_a_loss_curve(loss: list[float
     model = tmp_path / "sink.pt"
     field.save(model)
     monkeypatch.setattr(lfd, "load", lambda path: field)
-    monkeypatch.setattr(lfd, "load_demos", lambda spec: short)
+    monkeypatch.setattr(lfd, "load_demos", lambda spec, clean=True: short)
     out = tmp_path / "out"
     assert cli.main(["--robot", "planar", "--model", str(model), "--perturb", "none", "--no-video",
                      "--out", str(out), "--quiet"]) == 0

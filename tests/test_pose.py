@@ -142,18 +142,18 @@ def test_pose_files_round_trip_bit_for_bit(tmp_path) -> None:
     assert np.allclose(geodesic_angle(prev, mid) + geodesic_angle(mid, nxt), geodesic_angle(prev, nxt), atol=1e-9)
 
 
-def test_a_recorded_pour_read_from_a_file_is_trimmed(tmp_path, small_pouring) -> None:
-    """Pouring demo 2 stands still for its last 2.6 s (a real recording): read from a file, it is
-    trimmed to 0.1 s of that, and the three demos are resampled to one length; in memory nothing changes."""
+def test_a_recorded_pour_read_from_a_file_loses_nothing(tmp_path, small_pouring) -> None:
+    """Pouring demo 2 creeps for its last 2.6 s, below 2% of its peak speed but well outside the
+    recording's noise: it is slow motion, not standing still, so read back from a file every sample
+    stays, bit for bit, and nothing is noted."""
     save_file(small_pouring, tmp_path / "d.npz")
     back = load_file(tmp_path / "d.npz")
-    name = tmp_path / "d.npz"
-    assert back.notes == (f"{name}: demo 2: trimmed 2.5 s standing still at the end (speed below 2% of its peak)",
-                          f"{name}: demos resampled to 250 samples each, evenly in time (they had 212 to 250)")
-    assert np.array_equal(back.x[:2], small_pouring.x[:2]) and np.array_equal(back.q[:2], small_pouring.q[:2])
-    assert float(back.t[2, -1]) == pytest.approx(float(small_pouring.t[2, -1]) - 2.53, abs=0.05)
-    np.testing.assert_allclose(back.x[2, -1], small_pouring.x[2, -1], atol=2e-3)      # it barely moved since
-    assert small_pouring.notes == ()
+    assert back.notes == ()
+    assert np.array_equal(back.t, small_pouring.t) and np.array_equal(back.x, small_pouring.x)
+    assert np.array_equal(back.q, small_pouring.q)
+    tail = small_pouring.t[2] >= small_pouring.t[2, -1] - 2.6
+    moved = float(np.linalg.norm(small_pouring.x[2, tail][-1] - small_pouring.x[2, tail][0]))
+    assert moved > 1e-4                                        # it does move at the end: > 0.1 mm
 
 
 def test_bad_pose_file_is_one_line_exit_2(tmp_path, small_pouring) -> None:

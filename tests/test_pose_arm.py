@@ -11,9 +11,9 @@ import pytest
 import lfd
 from lfd.demos import DemoSet, robottasks
 from robots import load_robot
-from sim.experiment import Experiment
-from sim.perturbations import GoalShift, StartOffset
-from sim.pipeline import ArmJob, run_job
+from sim.run.experiment import Experiment
+from sim.run.pipeline import ArmJob, run_job
+from sim.scene.perturbations import GoalShift, StartOffset
 
 pytestmark = pytest.mark.usefixtures("one_thread")   # torch rollouts: one thread (conftest.py)
 

@@ -323,7 +323,7 @@ def test_motion_check_takes_a_moving_demo() -> None:
 _GL_SCRIPT = """
 import sim
 from sim.errors import RenderError
-from sim.gl import require_backend
+from sim.media.gl import require_backend
 print("imported")
 try:
     require_backend()
@@ -353,7 +353,7 @@ def test_a_bad_gl_value_is_no_error_at_import_and_one_line_before_rendering(valu
 
 
 def test_osmesa_not_installed_is_no_error_at_import() -> None:
-    from sim.gl import library_found
+    from sim.media.gl import library_found
 
     if library_found("osmesa"):
         pytest.skip("libOSMesa is installed here")
@@ -366,7 +366,7 @@ def test_osmesa_not_installed_is_no_error_at_import() -> None:
 
 def test_broken_egl_is_no_error_at_import() -> None:
     """glvnd's libEGL with no vendor library: as a broken driver (no EGL display can be made)."""
-    from sim.gl import library_found
+    from sim.media.gl import library_found
 
     if not library_found("egl"):
         pytest.skip("libEGL is not installed here")
@@ -385,7 +385,7 @@ def test_dm_control_physics_still_renders_on_first_use() -> None:
     """dm_control is imported with rendering off; ``Physics.render`` picks the back-end when called."""
     import sim
     from sim.errors import RenderError
-    from sim.gl import require_backend
+    from sim.media.gl import require_backend
 
     try:
         require_backend()

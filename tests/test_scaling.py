@@ -1,4 +1,4 @@
-"""The scaling curves' library parts (lfd.bench.scaling, sim.scaling) and the options of their report
+"""The scaling curves' library parts (lfd.bench.scaling, sim.studies.scaling_control) and the options of their report
 (``sim.studies.scaling``, scripts/scaling.py).
 
 Cheap: no learner is trained and nothing is timed (the measurement itself is replaced where a test
@@ -147,7 +147,7 @@ def test_cached_measure_measures_once_then_reads_the_file(tmp_path: Path, monkey
 # ---------------------------------------------------------------- obstacles off the path
 
 def test_off_path_spheres_lie_beyond_the_demos_and_apart() -> None:
-    from sim.scaling import off_path_spheres
+    from sim.studies.scaling_control import off_path_spheres
 
     demos = lfd.spiral()
     base = np.array([-6.0, 0.5])

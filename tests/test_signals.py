@@ -153,13 +153,13 @@ def as_from_a_terminal() -> None:
 COMPLETE = {"sweep_arm": "summary.json", "lfd": "m.pt", "demo_arm": "metrics.json"}
 # the project's files that run before the handlers are in place: the interpreter's start-up, then these
 BEFORE_HANDLERS = ("lfd/__init__.py", "lfd/errors.py", "lfd/interrupts.py", "lfd/lazy.py", "lfd/cli.py",
-                   "scripts/sweep_arm.py", "sim/__init__.py", "sim/gl.py", "sim/errors.py", "sim/cli.py")
+                   "scripts/sweep_arm.py", "sim/__init__.py", "sim/media/gl.py", "sim/errors.py", "sim/run/cli.py")
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the signal masks in /proc")
 def test_early_signal_exits_130_without_traceback(tmp_path: Path) -> None:
     """SIGINT and SIGTERM into ``scripts/sweep_arm.py``, ``lfd train`` and the installed
-    ``lfd-demo-arm`` launcher (whose first line imports ``sim.cli``) a few moments after their
+    ``lfd-demo-arm`` launcher (whose first line imports ``sim.run.cli``) a few moments after their
     start: during the interpreter's start-up, the programs' module-level imports and their first
     work. Once the program's code has taken the signals (SIGTERM caught at the moment it is sent)
     the end is exit 130, exactly one line ``<prog>: interrupted``, nothing on stdout and nothing

@@ -17,10 +17,10 @@ from known_fields import sink_field
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import load_robot
-from sim import experiment as sim_experiment
+from sim.control.task import OBSERVATION_KEYS
 from sim.errors import PlacementError, RenderError, SimulationError
-from sim.perturbations import compile_schedule
-from sim.task import OBSERVATION_KEYS
+from sim.run import experiment as sim_experiment
+from sim.scene.perturbations import compile_schedule
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -172,15 +172,15 @@ def test_divergence_raises_simulation_error(planar, demos):
 
 
 def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypatch):
-    import sim.job
-    from sim import cli
+    import sim.run.job
+    from sim.run import cli
 
     model = tmp_path / "sink.pt"
     demos = lfd.spiral(n_demos=2, n_samples=60, duration=1.0)
     sink_field(demos).save(model)
     monkeypatch.setattr(lfd, "load", lambda path: sink_field(lfd.load_demos("spiral")))
     diverging = lambda name, seed=0, pose=False: (sim.JointVelocityNoise(std_rad_s=1e12),)  # noqa: E731
-    monkeypatch.setattr(sim.job, "scenario", diverging)
+    monkeypatch.setattr(sim.run.job, "scenario", diverging)
     monkeypatch.setattr(sim_experiment, "scenario", diverging)
     out = tmp_path / "out"
     rc = cli.main(["--robot", "planar", "--model", str(model), "--perturb", "none", "--out", str(out), "--quiet"])
@@ -195,7 +195,7 @@ def test_demo_cli_writes_nothing_when_the_simulation_diverges(tmp_path, monkeypa
     (["--demos", "lasa:Nope"], "unknown LASA shape"),
 ])
 def test_demo_cli_bad_input_is_one_line_exit_2(argv, message, capsys):
-    from sim import cli
+    from sim.run import cli
 
     assert cli.main(argv + ["--quiet"]) == 2
     err = capsys.readouterr().err.strip()
@@ -224,7 +224,7 @@ def test_headless_video_has_expected_frames_and_motion(planar, demos, tmp_path):
 
 # ---------------------------------------------------------------- GL back-end choice
 def test_gl_backend_respects_the_user_and_falls_back_to_osmesa(monkeypatch):
-    from sim import gl
+    from sim.media import gl
 
     monkeypatch.setenv("MUJOCO_GL", "osmesa")
     assert gl.select_backend() == "osmesa" and os.environ["MUJOCO_GL"] == "osmesa"
@@ -237,7 +237,7 @@ def test_gl_backend_respects_the_user_and_falls_back_to_osmesa(monkeypatch):
 
 
 def test_render_error_is_one_clear_line(monkeypatch):
-    from sim.render import open_gl_context
+    from sim.media.render import open_gl_context
 
     monkeypatch.setenv("MUJOCO_GL", "wgl")
     with pytest.raises(RenderError, match="MUJOCO_GL=wgl cannot render offscreen"):

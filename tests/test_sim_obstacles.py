@@ -1,4 +1,4 @@
-"""Obstacles in the MuJoCo scene (sim.obstacles), the contacts counted; a goal that moves mid-run."""
+"""Obstacles in the MuJoCo scene (sim.scene.obstacles), the contacts counted; a goal that moves mid-run."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from lfd.errors import ConfigError
 from lfd.obstacles import Obstacle
 from robots import load_robot
 from robots.kinematics import Kinematics
-from sim.obstacles import obstacle_contacts, obstacle_geom_ids, with_obstacles
-from sim.placement import Placement
+from sim.scene.obstacles import obstacle_contacts, obstacle_geom_ids, with_obstacles
+from sim.scene.placement import Placement
 
 
 @pytest.fixture(scope="module")
@@ -80,11 +80,11 @@ def test_contacts_are_counted_where_the_tool_enters_and_clearance_elsewhere(plan
 
 @pytest.fixture
 def demo_arm_sink(tmp_path, monkeypatch):
-    """The arm job's command line (``sim.cli``, behind scripts/demo_arm.py) and the flags of a quick
+    """The arm job's command line (``sim.run.cli``, behind scripts/demo_arm.py) and the flags of a quick
     planar run of a sink field (no training)."""
     from known_fields import sink_field
 
-    from sim import cli as demo_arm
+    from sim.run import cli as demo_arm
 
     model = tmp_path / "sink.pt"
     sink_field(lfd.spiral(n_demos=2, n_samples=60, duration=1.0)).save(model)
@@ -187,7 +187,7 @@ def test_the_moving_goal_is_recorded_and_drawn_where_it_is(panda_goal_runs, tmp_
         out = []
         for img in (frames[0], frames[-1]):
             r, g, b = (img[..., i].astype(int) for i in range(3))
-            mask = (r > 200) & (g > 160) & (b < 90)                           # the goal's gold (sim.overlay.GOAL_RGB)
+            mask = (r > 200) & (g > 160) & (b < 90)          # the goal's gold (sim.media.overlay.GOAL_RGB)
             mask[:h // 3, :w // 3] = False                                     # the legend's goal dot
             v, u = np.nonzero(mask)
             assert len(u) > 5, "no goal dot in the frame"

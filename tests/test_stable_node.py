@@ -308,3 +308,32 @@ def test_certify_checks_the_lyapunov_function_and_finds_a_broken_one(field: Stab
     monkeypatch.undo()
     monkeypatch.setattr(field.module, "gain", 0.5)
     assert not certify(field, samples=400, equilibria=False).certified
+
+
+# ---------------------------------------------------------------- imitation accuracy
+
+# The stable NODE imitates as well as the NODE it corrects: on each shape its benchmark DTW (every 4th
+# sample, mm, lfd.bench.lasa) is at most this factor of the NODE's, both at their defaults, seed 0.
+# Both are also held to an absolute bound just above the NODE's own scores on these shapes, so that
+# two equally bad fits cannot pass.
+STABLE_DTW_FACTOR = 1.15
+LASA_DTW_MAX = {"Angle": 420.0, "Sine": 260.0}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shape", sorted(LASA_DTW_MAX))
+def test_stable_node_imitates_lasa_as_well_as_the_node(shape: str) -> None:
+    from lfd.bench.lasa import LasaSuite
+    from lfd.bench.protocol import LasaProtocol
+    from lfd.bench.spaces import POSITIONS, fit
+    from lfd.demos import lasa
+
+    demos, suite = lasa(shape), LasaSuite(LasaProtocol())
+    dtw = {}
+    for learner in ("node", "stable_node"):
+        model = fit(learner, demos, 0, {}, POSITIONS)
+        y, v = model.reproduce(POSITIONS.states(demos), demos.t)
+        scores = suite.score(y, v, demos, list(range(demos.n_demos)), POSITIONS.goal(demos))
+        dtw[learner] = float(np.mean(scores["dtw"]))
+    assert dtw["node"] <= LASA_DTW_MAX[shape], dtw
+    assert dtw["stable_node"] <= STABLE_DTW_FACTOR * dtw["node"], dtw

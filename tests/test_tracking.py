@@ -7,13 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from reference_kernels import nearest_point_reference, phase_point_reference
 
 import lfd
 from lfd.cli import main
 from lfd.demos import save_file
 from lfd.errors import ConfigError
 from lfd.evaluation import reproduce
-from lfd.learners.tracking import TrackingConfig, TrackingField, _numpy_phase_point_fn, check_tracking_contraction
+from lfd.learners.tracking import PHASE_END, TrackingConfig, TrackingField, check_tracking_contraction
 from lfd.metrics import rmse
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -131,38 +132,46 @@ def test_phase_point_fn_agrees_with_velocity(spiral: lfd.DemoSet, fields: dict[s
         np.testing.assert_allclose(f.single_point_evaluator()(x0), f(x0), rtol=1e-9, atol=1e-12)
 
 
-def _numpy_twin(f: TrackingField, x0: np.ndarray | None):
-    """The numpy (x, s) -> (dx/dt, ds/dt) of Eqs. (T3)-(T4) on the same tables as ``phase_point_fn(x0)``."""
+def _numpy_twin(f: TrackingField, x0: np.ndarray | None, clock_weight=None):
+    """The numpy (x, s) -> (dx/dt, ds/dt) of Eqs. (T3)-(T4b) on the same tables as ``phase_point_fn(x0)``
+    (tests/reference_kernels.py)."""
     mod = f.module
     ref, dref = mod.ref.numpy().copy(), mod.dref.numpy().copy()
     delta = None if x0 is None else f.start_offset(x0)
     if delta is not None:
         ref, dref = ref + mod.gain.numpy() @ delta[0], dref + mod.dgain.numpy() @ delta[0]
-    return _numpy_phase_point_fn(ref, dref, f.norm.goal, float(f.norm.scale), mod.rate, mod.eps ** 2,
-                                 1.0 / float(mod.duration), mod.phase_stop)
+    return phase_point_reference(ref, dref, f.norm.goal, float(f.norm.scale), mod.rate, mod.eps ** 2,
+                                 1.0 / float(mod.duration), mod.phase_stop, PHASE_END, clock_weight)
 
 
 @pytest.mark.parametrize("dim", [2, 3, 6])
 def test_compiled_point_paths_equal_their_numpy_twins(spiral: lfd.DemoSet, dim: int) -> None:
     """The compiled (x, s) -> (dx/dt, ds/dt) (``phase_point_fn``, the runner's call) and autonomous
     view (``field(x)``, the nearest tabulated phase) against the numpy versions, to 1e-12, at points
-    on and off the demos, phases outside [0, 1] included; every variant of Eq. (T4)."""
+    on and off the demos, phases outside [0, 1] included; every variant of Eq. (T4), and Eq. (T4b)
+    with a clock weight that varies with x."""
     demos = spiral if dim == 2 else lfd.spiral3d() if dim == 3 else lfd.DemoSet(
         spiral.t, np.concatenate([spiral.x, 0.5 * spiral.x[..., ::-1], spiral.x ** 2], -1))
     rng = np.random.default_rng(dim)
     pts = demos.x.reshape(-1, dim)[::23]
     pts = np.concatenate([pts, pts + 0.2 * demos.extent * rng.normal(size=pts.shape)])
+    def clock(x: np.ndarray) -> float:
+        return float(0.5 + 0.5 * np.tanh(x[0] - demos.goal[0]))
+
     for options in ({}, {"condition_start": False}, {"phase_stop": False}):
         f = lfd.train("tracking", demos, **options)
-        for x0 in (demos.x[1, 0], None):
-            fn, twin = f.phase_point_fn(x0), _numpy_twin(f, x0 if f.conditioned else None)
+        for x0, weight in ((demos.x[1, 0], None), (None, None), (demos.x[1, 0], clock)):
+            fn, twin = f.phase_point_fn(x0, weight), _numpy_twin(f, x0 if f.conditioned else None, weight)
             for x in pts:
                 for s in (0.0, float(rng.uniform()), 0.995, 1.0, 1.3, -0.1):
                     v, sd = fn(x, s)
                     v2, sd2 = twin(x, s)
                     np.testing.assert_allclose(v, v2, rtol=1e-12, atol=1e-12)
                     assert abs(sd - sd2) <= 1e-12
-        auto, twin_n = f.single_point_evaluator(), f._point_fn_normalized()
+        mod = f.module
+        auto = f.single_point_evaluator()
+        twin_n = nearest_point_reference(mod.ref.numpy().copy(), mod.dref.numpy().copy(), mod.rate, mod.eps ** 2,
+                                         1.0 / f.duration, mod.phase_stop, PHASE_END)
         for x in pts:
             want = twin_n((x - f.norm.goal) / f.norm.scale) * f.norm.scale
             np.testing.assert_allclose(auto(x), want, rtol=1e-12, atol=1e-12)

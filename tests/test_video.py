@@ -1,5 +1,5 @@
-"""Videos, overlays, plots and saved time series (sim.render, sim.overlay, sim.camera, sim.plots,
-sim.timeseries, scripts/demo_arm.py options).
+"""Videos, overlays, plots and saved time series (sim.media.render, sim.media.overlay, sim.media.camera,
+sim.media.plots, sim.run.timeseries, scripts/demo_arm.py options).
 
 Videos are read back with imageio_ffmpeg. Colour checks allow +-45 per channel: H.264 (4:2:0
 chroma) and software rendering shift pixel values slightly from machine to machine.
@@ -17,9 +17,9 @@ from known_fields import sink_field
 import lfd
 import sim  # noqa: F401  (sets MUJOCO_GL first)
 from robots import load_robot
-from sim import overlay
-from sim.camera import CameraSpec
-from sim.render import panel_grid
+from sim.media import overlay
+from sim.media.camera import CameraSpec
+from sim.media.render import panel_grid
 
 ROOT = Path(__file__).resolve().parents[1]
 TOL = 45
@@ -139,7 +139,8 @@ def test_named_and_orbit_cameras_render(exp, pushed, tmp_path):
 
 # ---------------------------------------------------------------- data and plots
 def test_timeseries_and_plots(exp, pushed, tmp_path):
-    from sim import plots, timeseries
+    from sim.media import plots
+    from sim.run import timeseries
 
     ts = timeseries.arrays(pushed, exp.placement, exp.robot)
     timeseries.save(tmp_path / "run.npz", ts)
@@ -166,7 +167,7 @@ def test_timeseries_and_plots(exp, pushed, tmp_path):
 
 def test_loop_records_qdot_command_and_push_force(exp, demos):
     """The control loop records qdot, the field's command and the applied push force."""
-    from sim import timeseries
+    from sim.run import timeseries
 
     push = sim.Push(force_n=7.5, duration_s=0.1, start_s=0.25, direction=(1.0, 1.0, 0.0), seed=4)
     result = exp.run(sink_field(demos), "my-push", perturbations=(push,))
@@ -213,8 +214,8 @@ def test_loss_plot_marks_the_curriculum_stages():
 # ---------------------------------------------------------------- the arm job (scripts/demo_arm.py)
 @pytest.fixture
 def demo_arm():
-    """The arm job's command line, ``sim.cli`` (what scripts/demo_arm.py runs)."""
-    from sim import cli
+    """The arm job's command line, ``sim.run.cli`` (what scripts/demo_arm.py runs)."""
+    from sim.run import cli
 
     return cli
 
@@ -224,7 +225,7 @@ def test_demo_arm_writes_series_plots_and_video_matching_metrics(demo_arm, tmp_p
     model = tmp_path / "sink.pt"
     sink_field(short).save(model)
     monkeypatch.setattr(lfd, "load", lambda path: sink_field(short))
-    monkeypatch.setattr(lfd, "load_demos", lambda spec: short)
+    monkeypatch.setattr(lfd, "load_demos", lambda spec, clean=True: short)
     out = tmp_path / "out"
     rc = demo_arm.main(["--robot", "planar", "--model", str(model), "--perturb", "push", "--push-start", "0.5",
                         "--push-force", "12.5", "--push-duration", "0.1",
@@ -255,14 +256,14 @@ def test_demo_arm_writes_series_plots_and_video_matching_metrics(demo_arm, tmp_p
 
 def test_demo_arm_writes_the_perturbations_of_the_result(exp, demos):
     """metrics.json takes a run's perturbations from its result, not from the scenario's name."""
-    from sim.job_files import run_entry
+    from sim.run.job_files import run_entry
 
     push = sim.Push(force_n=3.0, duration_s=0.05, start_s=0.4, seed=7)
     result = exp.run(sink_field(demos), "push", perturbations=(push,))
     entry = run_entry(result)
     assert entry["perturbations"] == [push.describe()]
     assert entry["perturbations"][0]["force_n"] == 3.0 and entry["perturbations"][0]["start_s"] == 0.4
-    assert entry["perturbations"] != [p.describe() for p in sim.experiment.scenario("push")]
+    assert entry["perturbations"] != [p.describe() for p in sim.run.experiment.scenario("push")]
     assert entry["metrics"] is result.metrics
 
 

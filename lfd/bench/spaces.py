@@ -26,7 +26,8 @@ from lfd.bench.fields import field_model
 from lfd.bench.model import Model
 from lfd.demos import DemoSet
 from lfd.field import VelocityField, cached_single_point_evaluator
-from lfd.learners import LEARNERS, get_learner, train
+from lfd.fingerprint import code_fingerprint
+from lfd.learners import LEARNERS, get_learner, learner_module, train
 from lfd.pose import PoseChart
 
 #: the baseline's name beside the registry's learners
@@ -36,6 +37,11 @@ DMP = "dmp"
 def bench_learners() -> tuple[str, ...]:
     """Every learner the benchmarks score: ``lfd.learners.LEARNERS``, then ``dmp``."""
     return (*LEARNERS, DMP)
+
+
+def learner_code(learner: str) -> str:
+    """The fingerprint of a bench learner's code (``lfd.fingerprint``): its module and all it imports."""
+    return code_fingerprint(dmp.__name__ if learner == DMP else learner_module(learner))
 
 
 class Space(ABC):

@@ -25,8 +25,9 @@ import numpy as np
 
 from lfd.bench.model import Model
 from lfd.bench.protocol import resolve_names, stable_hash
-from lfd.bench.spaces import Space, fit, resolve_config
+from lfd.bench.spaces import Space, fit, learner_code, resolve_config
 from lfd.demos import DemoSet
+from lfd.fingerprint import code_fingerprint
 
 IN_SAMPLE, HELD_OUT = "in-sample", "held-out"
 SPLITS: tuple[str, ...] = (IN_SAMPLE, HELD_OUT)
@@ -60,7 +61,7 @@ class Cell:
     seed: int                                          # the learner's seed
     fold: int | None                                   # held-out: the demo left out; in-sample: None
     options: dict[str, Any] = field(hash=False)        # the learner's keyword options
-    hash: str = ""                                     # protocol, learner, full config, unit, seed, fold
+    hash: str = ""                                     # protocol, learner, config, code, unit, seed, fold
 
     @property
     def split(self) -> str:
@@ -75,6 +76,10 @@ class Cell:
         """Train and score the cell (``Suite.evaluate``)."""
         return self.suite.evaluate(self)
 
+
+#: modules that only present results (report text, pages, plots): left out of the scoring code's fingerprint
+PRESENTATION: tuple[str, ...] = ("lfd.bench.report", "lfd.bench.report_page", "lfd.bench.summary", "lfd.pages",
+                                 "lfd.plotting")
 
 #: demos whose ends lie within this fraction of the states' extent of their mean end share one goal
 SAME_END = 1e-4
@@ -127,7 +132,8 @@ class Suite(ABC):
 
     def cell(self, learner: str, unit: str, seed: int, fold: int | None, options: dict[str, Any]) -> Cell:
         key = {"protocol": self.protocol.to_dict(), "learner": learner, "config": self.config(learner, options),
-               self.unit: unit, "seed": seed, "fold": fold}
+               self.unit: unit, "seed": seed, "fold": fold,
+               "code": {"learner": learner_code(learner), "scoring": self.scoring_code()}}
         return Cell(self, learner, unit, seed, fold, dict(options), stable_hash(key))
 
     def cells(self, learners: list[str], units: dict[str, list[str]], seeds: list[int],
@@ -137,6 +143,11 @@ class Suite(ABC):
             list(range(self.n_demos)) if HELD_OUT in splits else [])
         return [self.cell(learner, unit, seed, fold, options[learner])
                 for learner in learners for unit in units[learner] for seed in seeds for fold in folds]
+
+    def scoring_code(self) -> str:
+        """The fingerprint of the code that scores this suite's cells (``lfd.fingerprint``): the
+        suite's module and all it imports of lfd, less the code that only presents (``PRESENTATION``)."""
+        return code_fingerprint(type(self).__module__, __name__, exclude=PRESENTATION)
 
     def evaluate(self, cell: Cell) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         """Train ``cell.learner`` on the split's training demos and score it on its scored demos

@@ -25,9 +25,43 @@ DEMOS_HELP = ("spiral, spiral3d, lasa:NAME, robottasks:TASK, bag:PATH:/topic[:PA
 
 def add_model_and_demos(p: argparse.ArgumentParser) -> None:
     """The arguments of a command that reads a model with its demos (``model_and_demos``): the
-    model file, positional, and ``--demos SPEC``, required."""
+    model file, positional, ``--demos SPEC``, required, and the clean-up's ``--clean``/``--no-clean``."""
     p.add_argument("model", help=MODEL_HELP)
     p.add_argument("--demos", required=True, metavar="SPEC", help=DEMOS_HELP)
+    add_clean(p)
+
+
+def clean_steps(text: str) -> frozenset[str]:
+    """argparse type of ``--clean``: ``all``, ``none`` or comma-separated steps of
+    ``lfd.demos.recording.CLEAN_STEPS`` (read without importing numpy)."""
+    import argparse
+
+    steps = tuple(source_constant("lfd.demos.recording", "CLEAN_STEPS"))
+    words = [w.strip() for w in text.split(",")]
+    if words in (["all"], ["none"]):
+        return frozenset(steps) if words == ["all"] else frozenset()
+    unknown = [w for w in words if w not in steps]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown clean-up step '{unknown[0][:40]}'; give all, none or steps "
+                                         f"from {','.join(steps)}")
+    return frozenset(words)
+
+
+def add_clean(p: argparse.ArgumentParser) -> None:
+    """``--clean STEPS`` and ``--no-clean`` (one of them), the clean-up steps run on the recordings of
+    ``--demos`` (``demo_clean`` gives the ``clean`` argument of ``lfd.load_demos``)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--clean", type=clean_steps, metavar="STEPS",
+                   help="the clean-up steps run on a recording (a file or a bag; docs/recordings.md): all "
+                        "(default), none, or some of gaps,noise,still,pauses, e.g. --clean gaps,noise")
+    g.add_argument("--no-clean", dest="clean", action="store_const", const=frozenset(),
+                   help="read a recording as it is, with no clean-up (same as --clean none)")
+
+
+def demo_clean(args: argparse.Namespace) -> bool | frozenset[str]:
+    """The ``clean`` argument of ``lfd.load_demos`` that ``--clean``/``--no-clean`` ask for (True: all steps)."""
+    clean = getattr(args, "clean", None)
+    return True if clean is None else frozenset(clean)
 
 
 GOAL_HELP = ("run the model toward this goal instead of its demos' mean end (the field's toward): task "
@@ -54,8 +88,10 @@ def add_goal(p: argparse.ArgumentParser) -> None:
 
 
 def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False,
-                    goal: tuple[float, ...] | None = None) -> tuple[VelocityField, DemoSet]:
-    """Load a model file and a demo SPEC, and check that their dimensions agree. Demos of poses for a
+                    goal: tuple[float, ...] | None = None,
+                    clean: bool | frozenset[str] = True) -> tuple[VelocityField, DemoSet]:
+    """Load a model file and a demo SPEC (a recording cleaned up by the steps ``clean`` names,
+    ``lfd.load_demos``), and check that their dimensions agree. Demos of poses for a
     pose model come back as the model's chart points (``lfd.pose.chart_demos``, shape (N, T, 6): metres,
     and metres per ``ROTATION_LENGTH`` of turn), which is what the model's field maps. With ``goal``
     the field is the model's run toward it (``VelocityField.toward``; a pose's chart moved to the
@@ -70,7 +106,7 @@ def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False,
     field = load(model_path, allow_nonfinite)
     if goal is not None:
         field = field.toward(np.asarray(goal, dtype=np.float64))
-    demos = load_demos(spec)
+    demos = load_demos(spec, clean=clean)
     say_notes(demos)
     poses = field.space is StateSpace.POSE
     if poses != demos.has_orientation:
@@ -84,10 +120,15 @@ def model_and_demos(model_path: str, spec: str, allow_nonfinite: bool = False,
     return field, demos
 
 
-def say_notes(demos: DemoSet) -> None:
-    """Each line of ``demos.notes`` (what the clean-up of a recording did) on stderr, ``lfd: note: ...``."""
+def say_notes(demos: DemoSet, quiet: bool = False) -> None:
+    """Each line of ``demos.notes`` (what the clean-up of a recording did) on stderr, ``lfd: note: ...``;
+    ``quiet``: only those of a step that removed, filled or moved more than ``LOUD_SHARE`` of a demo's
+    duration (``lfd.demos.recording.loud_note``)."""
+    from lfd.demos.recording import loud_note
+
     for note in demos.notes:
-        say(f"lfd: note: {note}")
+        if not quiet or loud_note(note):
+            say(f"lfd: note: {note}")
 
 
 def seed(text: str) -> int:

@@ -34,7 +34,7 @@ def parse_box(text: str) -> tuple[Any, Any]:
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.commands import MODEL_HELP, add_goal, source_constant
+    from lfd.commands import MODEL_HELP, add_clean, add_goal, source_constant
 
     # read from lfd/certify.py without importing it (it imports torch; ``lfd --help`` stays fast)
     DEFAULT_SAMPLES, DEFAULT_TOLERANCE, IDENTITY_RATE = (  # noqa: N806
@@ -47,6 +47,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "(default: the demos' box grown by 50%%)")
     p.add_argument("--demos", metavar="SPEC",
                    help="take the box (grown by 50%%) and the duration of the search from these demos")
+    add_clean(p)
     p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
                    help=f"at least N grid points, at most {MAX_SAMPLES} (default {DEFAULT_SAMPLES})")
     p.add_argument("--rate", type=float, metavar="LAMBDA",
@@ -79,9 +80,9 @@ def run(args: argparse.Namespace) -> int:
     lo: Any = None
     hi: Any = None
     if args.demos is not None:
-        from lfd.commands import model_and_demos
+        from lfd.commands import demo_clean, model_and_demos
 
-        field, demos = model_and_demos(args.model, args.demos, allow_nonfinite=True)
+        field, demos = model_and_demos(args.model, args.demos, allow_nonfinite=True, clean=demo_clean(args))
         lo, hi = demos.bounds(BOX_GROWTH)
         duration = float((demos.t[:, -1] - demos.t[:, 0]).mean())
     else:

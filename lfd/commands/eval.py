@@ -35,7 +35,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfd.commands import check_output, model_and_demos
+    from lfd.commands import check_output, demo_clean, model_and_demos
     from lfd.errors import ConfigError, DemoError
     from lfd.evaluation import evaluate
     from lfd.field import StateSpace
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--dtw-step must be >= 1, got {args.dtw_step}")
     if args.json:
         check_output(args.json, "--json", {"model file": args.model, "demo file": args.demos})
-    field, demos = model_and_demos(args.model, args.demos, goal=args.goal)
+    field, demos = model_and_demos(args.model, args.demos, goal=args.goal, clean=demo_clean(args))
     if demos.n_samples > MAX_EVAL_SAMPLES:
         raise DemoError(f"{demos.name}: {demos.n_samples} samples per demo, lfd eval rolls out at most "
                         f"{MAX_EVAL_SAMPLES}; resample the demos")

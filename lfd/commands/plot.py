@@ -37,7 +37,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfd.commands import check_output, model_and_demos
+    from lfd.commands import check_output, demo_clean, model_and_demos
     from lfd.errors import ConfigError
     from lfd.interrupts import say
     from lfd.io import atomic_write
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from lfd.plotting import draw_obstacles, field_figure
 
     field: Any   # a VelocityField, then maybe wrapped (moving goal, obstacles) with the same interface
-    field, demos = model_and_demos(args.model, args.demos, goal=args.goal)
+    field, demos = model_and_demos(args.model, args.demos, goal=args.goal, clean=demo_clean(args))
     found = None
     if not args.no_equilibria:      # the learned field's own, before any obstacle or moving goal
         lo, hi = demos.bounds(grow=0.5)

@@ -67,18 +67,21 @@ def preload(args: argparse.Namespace) -> tuple[str, ...]:
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    from lfd.commands import DEMOS_HELP, seed
+    from lfd.commands import DEMOS_HELP, add_clean, seed, source_constant
 
     names = learner_names()
+    share = source_constant("lfd.demos.recording", "LOUD_SHARE")
     p = subparsers.add_parser("train", help="fit a learner to demos and save the model",
                               description=__doc__.split("\n\n")[0].splitlines()[0])
     p.add_argument("--learner", default="node", metavar="{" + ",".join(names) + "}",
                    help=f"learner: {', '.join(names)} (default node)")
     p.add_argument("--demos", required=True, metavar="SPEC", help=DEMOS_HELP)
+    add_clean(p)
     p.add_argument("--out", required=True, metavar="PATH", help="model file to write (e.g. model.pt)")
     p.add_argument("--seed", type=seed, default=0, help="random seed, 0 to 2^63 - 1 (default 0)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar (there is none unless "
-                   "stderr is a terminal)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (there is none unless stderr is a "
+                   f"terminal), and of the clean-up's notes only those of a step that removed, filled or moved "
+                   f"more than {100 * share:g}%% of a demo's duration")
     g = p.add_argument_group("learner options (left out: the learner's default; a learner "
                              "without the option refuses it)")
     g.add_argument("--iterations", type=int, help="training iterations (node: Adam steps, contraction: "
@@ -155,14 +158,14 @@ def run(args: argparse.Namespace) -> int:
     import sys
     import warnings
 
-    from lfd.commands import check_output, say_notes
+    from lfd.commands import check_output, demo_clean, say_notes
     from lfd.demos import demo_warnings, load_demos
     from lfd.learners import train
 
     options = learner_options(args.learner, args)
     check_output(args.out, "--out", {"demo file": args.demos})
-    demos = load_demos(args.demos)
-    say_notes(demos)
+    demos = load_demos(args.demos, clean=demo_clean(args))
+    say_notes(demos, quiet=args.quiet)
     for text in demo_warnings(demos):  # shown by lfd.cli as one line "lfd: warning: ..."
         warnings.warn(text, UserWarning, stacklevel=1)
     progress = not args.quiet and sys.stderr.isatty()  # a bar only on a terminal

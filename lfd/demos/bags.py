@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import struct
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -71,13 +71,15 @@ class _Stream:
     q: np.ndarray
 
 
-def load_bag(spec: str) -> DemoSet:
+def load_bag(spec: str, clean: bool | str | Iterable[str] = True) -> DemoSet:
     """The demos of a ``bag:`` SPEC (the module's docstring gives the grammar).
 
     Parameters
     ----------
     spec : str
         ``bag:PATH:/topic`` or ``bag:PATH:/topic:PARENT:CHILD``; PATH holds no ':'.
+    clean : bool, str or iterable of str
+        The clean-up steps to run (``lfd.demos.recording.clean_steps``): True all, False none.
 
     Returns
     -------
@@ -121,7 +123,8 @@ def load_bag(spec: str) -> DemoSet:
             raise DemoError(f"{where}: demo {i} ({which}) has {n} sample{'s' * (n != 1)}, at least "
                             f"{MIN_SAMPLES} are needed{hint}")
     ts = [(s.ns[a:b] - s.ns[a]) / 1e9 for _, s, a, b in segments]
-    return recorded_set(ts, [s.x[a:b] for _, s, a, b in segments], [s.q[a:b] for _, s, a, b in segments], spec)
+    return recorded_set(ts, [s.x[a:b] for _, s, a, b in segments], [s.q[a:b] for _, s, a, b in segments], spec,
+                        clean)
 
 
 def _parse(spec: str) -> _Spec:

@@ -6,6 +6,7 @@ import csv
 import os
 import re
 import zipfile
+from collections.abc import Iterable
 from pathlib import Path
 from typing import BinaryIO
 
@@ -20,9 +21,10 @@ POSE_HEADER = ["demo", "t", "x", "y", "z", "qw", "qx", "qy", "qz"]
 _PER_DEMO = re.compile(r"[txq]\d+")   # the NPZ keys of demos of their own lengths: t0, x0, q0, t1, ...
 
 
-def load_file(path: str | os.PathLike) -> DemoSet:
+def load_file(path: str | os.PathLike, clean: bool | str | Iterable[str] = True) -> DemoSet:
     """Read demos from a CSV or an NPZ file, as recordings: cleaned up (``lfd.demos.recording``: gaps,
-    noise, standing still, pauses, lengths; ``DemoSet.notes`` says what was done).
+    noise, standing still, pauses, lengths; ``DemoSet.notes`` says what was done). ``clean`` names the
+    clean-up steps to run (``lfd.demos.recording.clean_steps``: True all, False none).
 
     - CSV, positions: columns ``demo,t,x1..xd``; poses: ``demo,t,x,y,z,qw,qx,qy,qz`` (metres, the
       robot's base frame; the header decides). Each demo has its own rows, of any number.
@@ -40,9 +42,9 @@ def load_file(path: str | os.PathLike) -> DemoSet:
     suffix = p.suffix.lower()
     try:
         if suffix == ".npz":
-            return _load_npz(p, name)
+            return _load_npz(p, name, clean)
         if suffix == ".csv":
-            return _load_csv(p, name)
+            return _load_csv(p, name, clean)
     except DemoError:
         raise
     except PermissionError:
@@ -64,14 +66,14 @@ def _real_array(a: np.ndarray, key: str, name: str) -> np.ndarray:
     return np.asarray(a, dtype=np.float64)
 
 
-def _load_npz(p: Path, name: str) -> DemoSet:
+def _load_npz(p: Path, name: str, clean: bool | str | Iterable[str]) -> DemoSet:
     if not zipfile.is_zipfile(p):
         raise DemoError(f"{name}: not an NPZ file (not a zip archive, or truncated)")
     with np.load(p, allow_pickle=False) as z:
         arrays = {key: _real_array(z[key], key, name) for key in z.files if key in ("t", "x", "q")
                   or _PER_DEMO.fullmatch(key)}
     if any(_PER_DEMO.fullmatch(key) for key in arrays):
-        return _per_demo_npz(arrays, name)
+        return _per_demo_npz(arrays, name, clean)
     missing = {"t", "x"} - set(arrays)
     if missing:
         raise DemoError(f"{name}: missing array(s) {', '.join(sorted(missing))} (need t and x, or t0, x0, "
@@ -87,10 +89,10 @@ def _load_npz(p: Path, name: str) -> DemoSet:
         raise DemoError(f"{name}: t must have shape (T,) or {x.shape[:2]}, got {t.shape}")
     if q is not None and q.shape != (*x.shape[:2], 4):
         raise DemoError(f"{name}: quaternions have shape {q.shape}, expected {(*x.shape[:2], 4)} (w, x, y, z)")
-    return recorded_set(list(t), list(x), None if q is None else list(q), name)
+    return recorded_set(list(t), list(x), None if q is None else list(q), name, clean)
 
 
-def _per_demo_npz(arrays: dict[str, np.ndarray], name: str) -> DemoSet:
+def _per_demo_npz(arrays: dict[str, np.ndarray], name: str, clean: bool | str | Iterable[str]) -> DemoSet:
     """Demos of their own lengths: t0 (T_0,), x0 (T_0, d)[, q0 (T_0, 4)], t1, ..."""
     if "t" in arrays or "x" in arrays:
         raise DemoError(f"{name}: holds both t, x and per-demo arrays t0, x0, ...; use one layout")
@@ -110,10 +112,10 @@ def _per_demo_npz(arrays: dict[str, np.ndarray], name: str) -> DemoSet:
         if poses and arrays[f"q{i}"].shape != (len(t), 4):
             raise DemoError(f"{name}: q{i} has shape {arrays[f'q{i}'].shape}, expected {(len(t), 4)} (w, x, y, z)")
     return recorded_set([arrays[f"t{i}"] for i in range(n)], [arrays[f"x{i}"] for i in range(n)],
-                        [arrays[f"q{i}"] for i in range(n)] if poses else None, name)
+                        [arrays[f"q{i}"] for i in range(n)] if poses else None, name, clean)
 
 
-def _load_csv(p: Path, name: str) -> DemoSet:
+def _load_csv(p: Path, name: str, clean: bool | str | Iterable[str]) -> DemoSet:
     with open(p, newline="", encoding="utf-8-sig") as f:  # -sig: spreadsheets may write a BOM
         rows = list(csv.reader(f))
     if not rows:
@@ -140,8 +142,8 @@ def _load_csv(p: Path, name: str) -> DemoSet:
     arrays = [np.asarray(v) for v in demos.values()]
     if pose:
         return recorded_set([a[:, 0] for a in arrays], [a[:, 1:4] for a in arrays], [a[:, 4:] for a in arrays],
-                            name)
-    return recorded_set([a[:, 0] for a in arrays], [a[:, 1:] for a in arrays], None, name)
+                            name, clean)
+    return recorded_set([a[:, 0] for a in arrays], [a[:, 1:] for a in arrays], None, name, clean)
 
 
 def save_file(demos: DemoSet, path: str | os.PathLike) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
 
 from lfd.demos.bags import load_bag
@@ -10,15 +11,18 @@ from lfd.demos.demoset import DemoSet
 from lfd.demos.files import load_file
 from lfd.demos.generators import spiral, spiral3d
 from lfd.demos.lasa_handwriting import lasa
+from lfd.demos.recording import clean_steps
 from lfd.demos.robottasks9 import robottasks
 from lfd.errors import DemoError
 
 
-def load_demos(spec: str) -> DemoSet:
+def load_demos(spec: str, clean: bool | str | Iterable[str] = True) -> DemoSet:
     """Resolve a demo SPEC: ``spiral``, ``spiral3d``, ``lasa:NAME``, ``robottasks:TASK``,
     ``bag:PATH:/topic[:PARENT:CHILD]`` (``lfd.demos.bags``) or a file path (``lfd.demos.files``).
-    Bags and files are recordings, cleaned up (``lfd.demos.recording``); the generated and shipped
-    sets are taken as they are."""
+    Bags and files are recordings, cleaned up by the steps ``clean`` names (``lfd.demos.recording``:
+    True all, False none, or step names such as "gaps,noise"); the generated and shipped sets are
+    taken as they are. An unknown step in ``clean`` is a ConfigError, whatever the spec."""
+    clean = clean_steps(clean)
     if spec == "spiral":
         return spiral()
     if spec == "spiral3d":
@@ -32,8 +36,8 @@ def load_demos(spec: str) -> DemoSet:
                             "give one task (robottasks:TASK), or use lfd bench robottasks")
         return robottasks(task)
     if spec.startswith("bag:"):
-        return load_bag(spec)
+        return load_bag(spec, clean)
     if spec.endswith((".csv", ".npz", ".CSV", ".NPZ")) or os.path.sep in spec or Path(spec).exists():
-        return load_file(spec)
+        return load_file(spec, clean)
     raise DemoError(f"{spec}: unknown demo spec (use spiral, spiral3d, lasa:NAME, robottasks:TASK, "
                     "bag:FILE:/topic or a .csv/.npz file)")

@@ -35,6 +35,13 @@ def get_learner(name: str) -> type[Learner]:
     return getattr(importlib.import_module(mod), cls)
 
 
+def learner_module(name: str) -> str:
+    """The dotted name of the module that defines the learner ``name`` (its code's fingerprint starts there)."""
+    if name not in _REGISTRY:
+        raise ConfigError(f"unknown learner '{name}'; known: {', '.join(LEARNERS)}")
+    return _REGISTRY[name].split(":")[0]
+
+
 def normalize_demos(demos: DemoSet, norm: Normalization) -> DemoSet:
     """The same demos in normalised coordinates x_n = (x - goal) / s."""
     return DemoSet(demos.t, norm.to_norm(demos.x), name=demos.name, end_tolerance=demos.end_tolerance)

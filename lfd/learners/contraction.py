@@ -41,7 +41,7 @@ from tqdm.auto import tqdm
 from lfd.demos import DemoSet
 from lfd.field import ContractingField
 from lfd.learners.base import Learner
-from lfd.learners.flows import FACTORED_MIN_DIM, SWIRL_COMPONENTS, BoundedFlow, bounded_flow_numpy
+from lfd.learners.flows import FACTORED_MIN_DIM, SWIRL_COMPONENTS, BoundedFlow
 from lfd.threads import torch_threads
 from lfd.validate import check_bools, check_ints, check_numbers
 
@@ -336,27 +336,11 @@ class ContractionField(ContractingField):
     def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
         """x (d,) -> f(x) (d,) in user units: the normalisation, phi, J_phi and the d x d solve of
         Eq. (C3) in one compiled call (``lfd.learners.flow_kernel``; see
-        ``VelocityField.single_point_evaluator``). The numpy twin of phi and J_phi
-        is ``bounded_flow_numpy``."""
+        ``VelocityField.single_point_evaluator``), compiled or loaded now, not in the first control step."""
         from lfd.learners.flow_kernel import contraction_point_fn
 
-        params = self.module.flow.numpy_params()
-        y_star, _ = bounded_flow_numpy(params, np.zeros(self.dim))
-        f = contraction_point_fn(params, self.latent_matrix, y_star, self.norm.goal, float(self.norm.scale))
-        f(np.zeros(self.dim))            # compile or load the kernel now, not in the first control step
-        return f
-
-    def numpy_point_fn(self) -> Callable[[np.ndarray], np.ndarray]:
-        """Eq. (C3) for one point in plain numpy (no compilation), normalised units: x_n (d,) -> f_n (d,)."""
-        params = self.module.flow.numpy_params()
-        a = self.latent_matrix
-        y_star, _ = bounded_flow_numpy(params, np.zeros(self.dim))
-
-        def f(xn: np.ndarray) -> np.ndarray:
-            y, j = bounded_flow_numpy(params, xn)
-            return np.linalg.solve(j, a @ (y - y_star))
-
-        return f
+        return contraction_point_fn(self.module.flow.numpy_params(), self.latent_matrix, self.norm.goal,
+                                    float(self.norm.scale))
 
 
 class _NonFinite(Exception):

@@ -1,11 +1,16 @@
 """The compiled single-point evaluation of a contraction field, Eq. (C3), for control loops.
 
-A contraction field's single-point evaluation is called once per control step (500 Hz and more); the numpy version
-(``lfd.learners.flows.bounded_flow_numpy``) makes dozens of small numpy calls per point. This module fuses
-phi, J_phi (Eqs. (F1)-(F3)) and the d x d solve into one numba function (compiled once per
+A contraction field's single-point evaluation is called once per control step (500 Hz and more). This
+module fuses phi, J_phi (Eqs. (F1)-(F3)) and the d x d solve into one numba function (compiled once per
 machine; ``cache=True`` keeps the machine code beside this file), made of small ``njit`` helpers
-(one swirl, one residual block) that numba inlines into it (``inline="always"``). This module is imported lazily (by
+(one swirl, one residual block) that numba inlines into it (``inline="always"``); ``flow_point`` is
+phi and J_phi alone (phi(0), y* of Eq. (C2), comes from it). This module is imported lazily (by
 ``ContractionField``'s single-point evaluation), so ``import lfd`` never pays for numba.
+
+Written once: these kernels are the only single-point phi, J_phi and Eq. (C3) outside tests; the
+tests compare them with a numpy reference (tests/reference_kernels.py). The torch ``BoundedFlow``
+(``lfd.learners.flows``) is not a twin: it is the batched, differentiable path that training and
+batched evaluation need.
 """
 
 from __future__ import annotations
@@ -116,6 +121,21 @@ def left_multiply(step: np.ndarray, jac: np.ndarray, tmp: np.ndarray) -> None:  
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def flow_layers(y: np.ndarray, jac: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
+                gen: np.ndarray, w1b: np.ndarray, w2: np.ndarray, inv_r2: float, z: np.ndarray, kz: np.ndarray,
+                h: np.ndarray, th: np.ndarray, rot: np.ndarray, step: np.ndarray,
+                tmp: np.ndarray) -> None:  # pragma: no cover - compiled
+    """phi of Eqs. (F1)-(F3) in place: y (d,) <- phi(y) and jac (d, d) <- J_phi(y) jac, through every
+    (swirl, residual block) pair (the flow's arrays as ``pack_flow`` packs them). z, kz, h (d,),
+    th (hidden,), rot, step and tmp (d, d) are scratch."""
+    for k in range(theta.shape[0]):
+        swirl(y, k, centers, theta, inv_2rho2, gen, z, kz, rot, step)
+        left_multiply(step, jac, tmp)
+        residual_block(y, k, w1b, w2, inv_r2, th, h, step)
+        left_multiply(step, jac, tmp)
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
 def _solve_small(jac: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """out (d,) <- jac^-1 b: for d = 2 or 3 by Cramer's rule (J_phi is well conditioned by
     construction: its singular values lie in [s_lo, s_hi], Eq. (F4)), above by LAPACK's LU solve."""
@@ -162,11 +182,7 @@ def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np
         y[i] = (x[i] - goal[i]) / scale
         for j in range(d):
             jac[i, j] = 1.0 if i == j else 0.0
-    for k in range(theta.shape[0]):
-        swirl(y, k, centers, theta, inv_2rho2, gen, z, kz, rot, step)
-        left_multiply(step, jac, tmp)
-        residual_block(y, k, w1b, w2, inv_r2, th, h, step)
-        left_multiply(step, jac, tmp)
+    flow_layers(y, jac, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, z, kz, h, th, rot, step, tmp)
     for i in range(d):
         s = 0.0
         for j in range(d):
@@ -175,6 +191,23 @@ def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np
     _solve_small(jac, b, out)
     for i in range(d):
         out[i] *= scale
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True)
+def _flow_kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray, gen: np.ndarray,
+                 w1b: np.ndarray, w2: np.ndarray, inv_r2: float, vec: np.ndarray, mat: np.ndarray, th: np.ndarray,
+                 y: np.ndarray, jac: np.ndarray) -> None:  # pragma: no cover - compiled
+    """y (d,) <- phi(x) and jac (d, d) <- J_phi(x) at x (d,), normalised units (the flow's arrays as
+    ``pack_flow`` packs them). vec (3, d), mat (3, d, d) and th (hidden,) are scratch."""
+    d = x.shape[0]
+    if d != y.shape[0] or d != centers.shape[1]:
+        raise ValueError("the point's dimension does not match the flow's")
+    for i in range(d):
+        y[i] = x[i]
+        for j in range(d):
+            jac[i, j] = 1.0 if i == j else 0.0
+    flow_layers(y, jac, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, vec[0], vec[1], vec[2], th,
+                mat[0], mat[1], mat[2])
 
 
 def pack_flow(params: list[dict[str, Any]], d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -189,29 +222,50 @@ def pack_flow(params: list[dict[str, Any]], d: int) -> tuple[np.ndarray, np.ndar
             float(params[0]["inv_r2"]))
 
 
-def kernel() -> Any:
-    """The compiled kernel (compiled, or loaded from numba's cache, on its first call)."""
-    return _kernel
+def flow_point(params: list[dict[str, Any]], x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """phi(x) and J_phi(x) of Eqs. (F1)-(F3) for one point, compiled.
+
+    Parameters
+    ----------
+    params : list of dict
+        ``BoundedFlow.numpy_params()``.
+    x : array, shape (d,)
+        The point, normalised units.
+
+    Returns
+    -------
+    y : array, shape (d,)
+        phi(x).
+    jac : array, shape (d, d)
+        J_phi(x).
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    d = x.shape[0]
+    centers, theta, inv_2rho2, gen, w1b, w2, inv_r2 = pack_flow(params, d)
+    y, jac = np.empty(d), np.empty((d, d))
+    _flow_kernel(x, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, np.empty((3, d)), np.empty((3, d, d)),
+                 np.empty(w1b.shape[1]), y, jac)
+    return y, jac
 
 
-def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np.ndarray,
-                         goal: np.ndarray | None = None, scale: float = 1.0
-                         ) -> Callable[[np.ndarray], np.ndarray]:
+def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, goal: np.ndarray | None = None,
+                         scale: float = 1.0) -> Callable[[np.ndarray], np.ndarray]:
     """x (d,) -> scale f_n((x - goal) / scale) (d,) of Eq. (C3) through the compiled kernel: the field
     in user units given the normalisation (goal, scale), in normalised units by default.
 
-    params : ``BoundedFlow.numpy_params()``; a : A of Eq. (C2), (d, d); y_star : phi(0), (d,);
-    goal : (d,) (default 0); scale : > 0.
-    The evaluator owns scratch memory: one evaluator is for one thread.
+    params : ``BoundedFlow.numpy_params()``; a : A of Eq. (C2), (d, d); goal : (d,) (default 0);
+    scale : > 0. y* = phi(0) comes from ``flow_point``, the same operations as the kernel's phi, so
+    the goal is an equilibrium to the last bit. The kernel is compiled or loaded here, not in the
+    first control step. The evaluator owns scratch memory: one evaluator is for one thread.
     """
-    d = len(y_star)
-    centers, theta, inv_2rho2, gen, w1b, w2, inv_r2 = pack_flow(params, d)
     a = np.ascontiguousarray(a, dtype=np.float64)
-    y_star = np.ascontiguousarray(y_star, dtype=np.float64)
+    d = a.shape[0]
+    centers, theta, inv_2rho2, gen, w1b, w2, inv_r2 = pack_flow(params, d)
+    y_star = flow_point(params, np.zeros(d))[0]
     goal_ = np.zeros(d) if goal is None else np.ascontiguousarray(goal, dtype=np.float64).copy()
     scale_ = float(scale)
     vec, mat, th = np.empty((5, d)), np.empty((4, d, d)), np.empty(w1b.shape[1])   # the kernel's scratch
-    k, f64, empty = kernel(), np.dtype(np.float64), np.empty
+    k, f64, empty = _kernel, np.dtype(np.float64), np.empty
 
     def f(xn: np.ndarray) -> np.ndarray:
         if type(xn) is not np.ndarray or xn.dtype is not f64 or not xn.flags.c_contiguous:
@@ -220,4 +274,5 @@ def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, y_star: np
         k(xn, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, a, y_star, goal_, scale_, vec, mat, th, out)
         return out
 
+    f(np.zeros(d))
     return f

@@ -403,7 +403,10 @@ class BoundedFlow(nn.Module):
         return y
 
     def numpy_params(self) -> list[dict[str, np.ndarray | float]]:
-        """Per pair, float64 arrays for ``bounded_flow_numpy``."""
+        """Per (swirl, block) pair, the effective parameters as float64 arrays, for the compiled kernels
+        (``lfd.learners.flow_kernel.pack_flow``): ``c`` (d,), ``theta`` and ``inv_2rho2`` (J,), ``w1b``
+        (H, d + 1) (W1 and b1), ``w2`` (d, H), ``inv_r2`` (1 / R^2) and, for d >= 3, the generator
+        ``K`` (d, d)."""
         with torch.no_grad():
             p = {k: v.detach().double().numpy() for k, v in self.scaled().items()}
             w1, b1 = self.w1.double().numpy(), self.b1.double().numpy()
@@ -411,12 +414,10 @@ class BoundedFlow(nn.Module):
         out = []
         d = self.dim
         for k in range(self.n_pairs):
-            m = (p["w2"][k][:, None, :] * w1[k].T[None, :, :]).reshape(d * d, -1)
             item: dict[str, np.ndarray | float] = {
                 "c": center[k].copy(), "theta": p["theta"][k].copy(), "inv_2rho2": 0.5 / p["rho"][k] ** 2,
                 "w1b": np.ascontiguousarray(np.hstack([w1[k], b1[k][:, None]])),
-                "w2": np.ascontiguousarray(p["w2"][k]), "m": np.ascontiguousarray(m),
-                "inv_r2": 1.0 / self.window ** 2}
+                "w2": np.ascontiguousarray(p["w2"][k]), "inv_r2": 1.0 / self.window ** 2}
             if d == 3:
                 a = p["axis"][k]
                 item["K"] = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
@@ -495,40 +496,3 @@ def _block_inverse(w1: torch.Tensor, w2: torch.Tensor, x: torch.Tensor, env: tor
 
     return inverse
 
-
-def bounded_flow_numpy(params: list[dict[str, np.ndarray | float]], x: np.ndarray
-                       ) -> tuple[np.ndarray, np.ndarray]:
-    """phi(x) and J_phi(x) for ONE point, as ``BoundedFlow.forward_with_jacobian`` in float64.
-
-    params : ``BoundedFlow.numpy_params()``; x : array, shape (d,). Returns y (d,) and J (d, d).
-    """
-    d = x.shape[0]
-    y = np.array(x, dtype=np.float64)
-    jac = np.eye(d)
-    arg = np.ones(d + 1)
-    eye = np.eye(d)
-    for p in params:
-        z = y - p["c"]
-        r2 = float(z @ z)
-        e = np.exp(-r2 * p["inv_2rho2"])
-        te = p["theta"] * e
-        ang = float(te.sum())
-        q = -2.0 * float((te * p["inv_2rho2"]).sum())
-        cs, sn = math.cos(ang), math.sin(ang)
-        if d == 2:
-            rot = np.array([[cs, -sn], [sn, cs]])
-            kz = np.array([-z[1], z[0]])
-        else:
-            kk = cast(np.ndarray, p["K"])
-            rot = eye + sn * kk + (1 - cs) * (kk @ kk)
-            kz = kk @ z
-        jac = (rot @ (eye + q * np.outer(kz, z))) @ jac
-        y = p["c"] + rot @ z
-        arg[:d] = y
-        th = np.tanh(p["w1b"] @ arg)
-        env = math.exp(-0.5 * p["inv_r2"] * float(y @ y))
-        h = p["w2"] @ th
-        jg = (p["m"] @ (1.0 - th * th)).reshape(d, d) - np.outer(h, y * p["inv_r2"])
-        jac = (eye + env * jg) @ jac
-        y = y + env * h
-    return y, jac

@@ -1,12 +1,16 @@
 """The compiled single-point evaluation of an MLP velocity field (NODE), for control loops.
 
-``NodeField.single_point_evaluator`` is called once per control step (500 Hz and more); its numpy
-version (``lfd.learners.node._numpy_mlp``) makes two numpy calls per layer and an activation call,
-whose call overhead dominates at these sizes. ``mlp_point_fn`` runs the whole forward pass in one
-numba function (compiled once per machine; ``cache=True`` keeps the machine code beside this file).
-It agrees with the numpy version to round-off: the products with the weights are BLAS's, as
-numpy's, but the activations come from libm, not numpy's own loops. This module is imported lazily, so
-``import lfd`` never pays for numba.
+``NodeField.single_point_evaluator`` is called once per control step (500 Hz and more), where a
+numpy forward pass (two numpy calls per layer and an activation call) would cost more in call
+overhead than in arithmetic at these sizes. ``mlp_point_fn`` runs the whole forward pass in one
+numba function (compiled once per machine; ``cache=True`` keeps the machine code beside this file):
+the products with the weights are BLAS's, the activations libm's. This module is imported lazily,
+so ``import lfd`` never pays for numba.
+
+Written once: ``mlp`` is the only single-point MLP outside tests (g(0) of ``lfd.learners.node.
+numpy_layers`` included); the tests compare it with a numpy reference (tests/reference_kernels.py).
+``NodeMLP`` and ``lfd.learners.node_kernel`` are not twins: they are the batched torch paths that
+training (with autograd) and batched evaluation need.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from typing import Any
 import numba
 import numpy as np
 
-# activation codes of the kernel; each as ``lfd.learners.node._numpy_activation``
+# activation codes of the kernel; each as the torch activation of ``lfd.learners.node.ACTIVATIONS``
 ACTIVATIONS: dict[str, int] = {"tanh": 0, "relu": 1, "softplus": 2, "elu": 3, "silu": 4}
 
 

@@ -35,7 +35,6 @@ from typing import Any, cast
 
 import numpy as np
 import torch
-from scipy.special import expit
 from torch import nn
 from torchdiffeq import odeint, odeint_adjoint
 from tqdm.auto import tqdm
@@ -356,11 +355,7 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
 
 
 class NodeField(VelocityField):
-    """A NODE velocity field with a pure-numpy single-point path for control loops."""
-
-    def _numpy_layers(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """(W_i, b_i) in float64 with g(0) folded into the output bias (``numpy_layers``)."""
-        return numpy_layers(cast(NodeMLP, self.module))
+    """A NODE velocity field with a compiled single-point path for control loops."""
 
     def jacobian_lipschitz_bound(self) -> float:
         """An upper bound of Lip(J_f) = sup |D^2 f| on all of R^d, user units (1/(s unit)).
@@ -389,15 +384,11 @@ class NodeField(VelocityField):
             total += s2 * after * before * before
         return total / float(self.norm.scale)
 
-    def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
-        """x_n (d,) -> f(x_n) (d,): z_i = sigma(W_i z_{i-1} + b_i), f = W_L z_{L-1} + b_L - g(0)."""
-        return _numpy_mlp(self._numpy_layers(), cast(NodeMLP, self.module).activation)
-
     def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
         """The fast path for one point, for control loops: ``field(x)`` on x of shape (d,) calls it.
 
-        One compiled call (``lfd.learners.mlp_kernel``; the numpy twin is ``_numpy_mlp``, equal to
-        round-off) on a snapshot of the weights. The normalisation x_n = (x - goal) / s,
+        One compiled call (``lfd.learners.mlp_kernel``) on a snapshot of the weights
+        (``numpy_layers``, g(0) folded into the output bias). The normalisation x_n = (x - goal) / s,
         f = s f_n(x_n) is folded into the first and last layers: W_1' = W_1 / s,
         b_1' = b_1 - W_1 goal / s, W_L' = s W_L, b_L' = s b_L.
 
@@ -408,57 +399,28 @@ class NodeField(VelocityField):
         """
         from lfd.learners.mlp_kernel import mlp_point_fn  # here: ``import lfd`` does not import numba
 
-        layers = self._numpy_layers()
+        module = cast(NodeMLP, self.module)
+        layers = numpy_layers(module)
         goal, s = self.norm.goal, float(self.norm.scale)
         (w1, b1), (wl, bl) = layers[0], layers[-1]
         layers[0] = (w1 / s, b1 - w1.dot(goal) / s)
         layers[-1] = (wl * s, bl * s)
-        return mlp_point_fn(layers, cast(NodeMLP, self.module).activation)
+        return mlp_point_fn(layers, module.activation)
 
 
 def numpy_layers(module: NodeMLP) -> list[tuple[np.ndarray, np.ndarray]]:
     """The layers (W_i (out, in), b_i (out,)) of ``module`` in float64, input first, with g(0)
-    folded into the output bias when ``goal_equilibrium``: f(x_n) = W_L z_{L-1} + b_L - g(0)."""
+    folded into the output bias when ``goal_equilibrium``: f(x_n) = W_L z_{L-1} + b_L - g(0), g(0)
+    by the compiled kernel (``lfd.learners.mlp_kernel``), which is then compiled or loaded."""
+    from lfd.learners.mlp_kernel import mlp_point_fn  # here: ``import lfd`` does not import numba
+
     layers = [(m.weight.detach().double().numpy().copy(), m.bias.detach().double().numpy().copy())
               for m in module.linears()]
     if module.goal_equilibrium:
         w_out, b_out = layers[-1]
-        g0 = _numpy_mlp(layers, module.activation)(np.zeros(layers[0][0].shape[1]))
+        g0 = mlp_point_fn(layers, module.activation)(np.zeros(layers[0][0].shape[1]))
         layers[-1] = (w_out, b_out - g0)
     return layers
-
-
-def _numpy_mlp(layers: list[tuple[np.ndarray, np.ndarray]],
-               activation: str) -> Callable[[np.ndarray], np.ndarray]:
-    """x (d,) -> W_L z_{L-1} + b_L with z_i = sigma(W_i z_{i-1} + b_i), z_0 = x, in numpy.
-
-    ``ndarray.dot`` is about twice as fast as ``@`` on one vector; reentrant (no shared buffers).
-    """
-    act = _numpy_activation(activation)
-    hidden, (w_out, b_out) = tuple(layers[:-1]), layers[-1]
-
-    def f(x: np.ndarray) -> np.ndarray:
-        z = x
-        for w, b in hidden:
-            z = act(w.dot(z) + b)
-        return w_out.dot(z) + b_out
-
-    return f
-
-
-def _numpy_activation(name: str) -> Callable[[np.ndarray], np.ndarray]:
-    """The numpy twin of the torch activation ``name`` (softplus: beta 1, threshold 20, as torch)."""
-    if name == "tanh":
-        return np.tanh
-    if name == "relu":
-        return lambda z: np.maximum(z, 0.0)
-    if name == "softplus":
-        return lambda z: np.where(z > 20.0, z, np.log1p(np.exp(np.minimum(z, 20.0))))
-    if name == "elu":
-        return lambda z: np.where(z > 0.0, z, np.expm1(np.minimum(z, 0.0)))
-    if name == "silu":
-        return lambda z: z * expit(z)
-    raise ValueError(f"unknown activation '{name}'")
 
 
 class NodeLearner(Learner, name="node", config=NodeConfig, field=NodeField):

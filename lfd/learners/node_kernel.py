@@ -11,7 +11,10 @@ forward and as many backward. The two functions here cut that:
   and its exact discrete adjoint backward. The weight gradients of every evaluation are summed in
   one matrix product per layer at the end, instead of one small product per evaluation.
 
-Both are checked against autograd through torchdiffeq (values and gradients) in the tests.
+Both are checked against autograd through torchdiffeq (values and gradients) in the tests. They
+are not twins of ``NodeMLP``'s forward pass: that stays the path of ``odeint_adjoint`` (which
+differentiates each evaluation alone) and of batched evaluation; one point goes through
+``lfd.learners.mlp_kernel``.
 """
 
 from __future__ import annotations

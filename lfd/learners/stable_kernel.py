@@ -6,6 +6,10 @@ through the flow's swirls and residual blocks (``lfd.learners.flow_kernel``'s he
 (F1)-(F3)), V and grad V of Eq. (L1), and the projection of Eq. (L2), with the normalisation folded
 in. Compiled once per machine (``cache=True`` keeps the machine code beside this file); imported
 lazily, so ``import lfd`` never pays for numba.
+
+Written once: this kernel is the only single-point Eq. (L2) outside tests (the tests compare it with
+the torch module). ``StableNodeModule`` (``lfd.learners.stable_node``) is not a twin: it is the
+batched, differentiable path that training and batched evaluation need.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from typing import Any
 import numba
 import numpy as np
 
-from lfd.learners.flow_kernel import left_multiply, pack_flow, residual_block, swirl
+from lfd.learners.flow_kernel import flow_layers, flow_point, pack_flow
 from lfd.learners.mlp_kernel import activate, pack_layers
 
 
@@ -70,11 +74,7 @@ def _kernel(x: np.ndarray, goal: np.ndarray, scale: float, prm: np.ndarray, widt
         for j in range(d):
             jac[i, j] = 1.0 if i == j else 0.0
     _mlp(xn, prm, widths, act, buf, fh)
-    for k in range(theta.shape[0]):
-        swirl(y, k, centers, theta, inv_2rho2, gen, z, kz, rot, step)
-        left_multiply(step, jac, tmp)
-        residual_block(y, k, w1b, w2, inv_r2, th, h, step)
-        left_multiply(step, jac, tmp)
+    flow_layers(y, jac, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, z, kz, h, th, rot, step, tmp)
     v = 0.0
     for i in range(d):
         z[i] = y[i] - y_zero[i]
@@ -94,31 +94,26 @@ def _kernel(x: np.ndarray, goal: np.ndarray, scale: float, prm: np.ndarray, widt
         out[i] = scale * (fh[i] - coef * g[i])
 
 
-def kernel() -> Any:
-    """The compiled kernel (compiled, or loaded from numba's cache, on its first call)."""
-    return _kernel
-
-
 def stable_point_fn(layers: list[tuple[np.ndarray, np.ndarray]], activation: str, flow: list[dict[str, Any]],
-                    y_zero: np.ndarray, alpha: float, alpha_goal: float, v_goal: float, gain: float,
-                    goal: np.ndarray, scale: float
+                    alpha: float, alpha_goal: float, v_goal: float, gain: float, goal: np.ndarray, scale: float
                     ) -> Callable[[np.ndarray], np.ndarray]:
     """x (d,) -> f(x) (d,) of Eq. (L2) in user units, through the compiled kernel.
 
     layers : fhat's (W_i (out, in), b_i (out,)), input first, with fhat(0) folded into the last
     bias; activation : a key of ``lfd.learners.mlp_kernel.ACTIVATIONS``; flow :
-    ``BoundedFlow.numpy_params()``; y_zero : phi(0) (d,); alpha : 2 rate, 1/s; goal (d,), scale :
-    the normalisation. The evaluator owns scratch memory: one evaluator is for one thread.
+    ``BoundedFlow.numpy_params()``; alpha : 2 rate, 1/s; goal (d,), scale : the normalisation.
+    phi(0) comes from ``lfd.learners.flow_kernel.flow_point``, the kernel's own phi. The evaluator
+    owns scratch memory: one evaluator is for one thread.
     """
-    d = len(y_zero)
+    goal_ = np.ascontiguousarray(goal, dtype=np.float64).copy()
+    d = goal_.shape[0]
     prm, widths, act = pack_layers(layers, activation)
     centers, theta, inv_2rho2, gen, w1b, w2, inv_r2 = pack_flow(flow, d)
-    y0 = np.ascontiguousarray(y_zero, dtype=np.float64).copy()
-    goal_ = np.ascontiguousarray(goal, dtype=np.float64).copy()
+    y0 = flow_point(flow, np.zeros(d))[0]
     scale_, alpha_, alpha_goal_, v_goal_, gain_ = (float(v) for v in (scale, alpha, alpha_goal, v_goal, gain))
     vec, mat, th = np.empty((7, d)), np.empty((4, d, d)), np.empty(w1b.shape[1])
     buf = np.empty((2, int(widths.max())))
-    k, f64, empty = kernel(), np.dtype(np.float64), np.empty
+    k, f64, empty = _kernel, np.dtype(np.float64), np.empty
 
     def f(x: np.ndarray) -> np.ndarray:
         if type(x) is not np.ndarray or x.dtype is not f64:

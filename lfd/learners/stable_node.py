@@ -36,7 +36,7 @@ from lfd.demos import DemoSet
 from lfd.errors import ConfigError
 from lfd.field import VelocityField
 from lfd.learners.base import Learner
-from lfd.learners.flows import SWIRL_COMPONENTS, BoundedFlow, bounded_flow_numpy
+from lfd.learners.flows import SWIRL_COMPONENTS, BoundedFlow
 from lfd.learners.node import (
     NodeConfig,
     NodeLearner,
@@ -272,10 +272,8 @@ class StableNodeField(VelocityField):
         (``lfd.learners.stable_kernel``), with the normalisation folded in."""
         from lfd.learners.stable_kernel import stable_point_fn
 
-        flow = self.module.flow.numpy_params()
-        y_zero, _ = bounded_flow_numpy(flow, np.zeros(self.dim))
         module = self.module
-        return stable_point_fn(numpy_layers(module.nominal), module.nominal.activation, flow, y_zero,
+        return stable_point_fn(numpy_layers(module.nominal), module.nominal.activation, module.flow.numpy_params(),
                                float(module.alpha), float(module.alpha_goal), module.v_goal, module.gain,
                                self.norm.goal, float(self.norm.scale))
 

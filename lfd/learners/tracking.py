@@ -92,7 +92,7 @@ class TrackingConfig:
             raise ValueError(f"align must be one of {', '.join(ALIGNMENTS)}, got {self.align!r}")
 
 
-def _hermite_weights(w: Any, _unused: Any = None) -> tuple[Any, Any, Any, Any, Any, Any, Any, Any]:
+def _hermite_weights(w: Any) -> tuple[Any, Any, Any, Any, Any, Any, Any, Any]:
     """Cubic Hermite basis on [0, 1] at w and its derivatives in w (torch or numpy, elementwise)."""
     w2, w3 = w * w, w * w * w
     return (2 * w3 - 3 * w2 + 1, w3 - 2 * w2 + w, -2 * w3 + 3 * w2, w3 - w2,
@@ -108,7 +108,7 @@ def _hermite(values: torch.Tensor, slopes: torch.Tensor, s: torch.Tensor) -> tup
     u = s.clamp(0.0, 1.0) * (m - 1)
     i0 = u.floor().long().clamp(0, m - 2)
     w = (u - i0.to(u.dtype)).reshape(-1, *([1] * (values.dim() - 1)))
-    a0, b0, a1, b1, da0, db0, da1, db1 = _hermite_weights(w, None)
+    a0, b0, a1, b1, da0, db0, da1, db1 = _hermite_weights(w)
     p0, p1, m0, m1 = values[i0], values[i0 + 1], slopes[i0] * hs, slopes[i0 + 1] * hs
     return a0 * p0 + b0 * m0 + a1 * p1 + b1 * m1, (da0 * p0 + db0 * m0 + da1 * p1 + db1 * m1) / hs
 
@@ -288,7 +288,7 @@ class TrackingField(PhasedRuns, ContractingField):
         ``clock_weight``: x (d,) -> omega in [0, 1]; the phase stopping h of Eq. (T4) is then
         blended toward the clock, h + omega (1 - h) (Eq. (T4b) of docs/equations.md: an obstacle
         wrapper passes its detour weight, so the phase keeps its pace while the tool detours),
-        in numpy (the weight is a Python callable). None (the default): Eq. (T4) as is."""
+        the weight called in Python, then the same compiled call. None (the default): Eq. (T4) as is."""
         mod = self.module
         ref, dref = mod.ref.numpy().copy(), mod.dref.numpy().copy()
         if x0 is not None and self.conditioned:
@@ -297,11 +297,9 @@ class TrackingField(PhasedRuns, ContractingField):
             dref = dref + mod.dgain.numpy() @ delta
         goal, sc, k, eps2 = self.norm.goal.copy(), float(self.norm.scale), mod.rate, mod.eps ** 2
         inv_t, stop = 1.0 / float(mod.duration), mod.phase_stop
-        if clock_weight is None:
-            from lfd.learners.tracking_kernel import phase_point_fn  # here: ``import lfd`` does not import numba
+        from lfd.learners.tracking_kernel import phase_point_fn  # here: ``import lfd`` does not import numba
 
-            return phase_point_fn(ref, dref, goal, sc, k, eps2, inv_t, stop, PHASE_END)
-        return _numpy_phase_point_fn(ref, dref, goal, sc, k, eps2, inv_t, stop, clock_weight)
+        return phase_point_fn(ref, dref, goal, sc, k, eps2, inv_t, stop, PHASE_END, clock_weight)
 
     # ---- rollouts integrate (x, s) jointly
     def rollout_with_phase(self, x0: np.ndarray, t: np.ndarray, method: str = "rk4", substeps: int = 1,
@@ -365,60 +363,13 @@ class TrackingField(PhasedRuns, ContractingField):
 
     def single_point_evaluator(self) -> Callable[[np.ndarray], np.ndarray]:
         """The autonomous view (``TrackingModule.forward``) for one point, x (d,) -> dx/dt (d,), user
-        units, in one compiled call (``lfd.learners.tracking_kernel``; the numpy twin is
-        ``_point_fn_normalized``, equal to round-off): Eq. (T3) at the phase of the nearest
-        tabulated reference point."""
+        units, in one compiled call (``lfd.learners.tracking_kernel``): Eq. (T3) at the phase of the
+        nearest tabulated reference point."""
         from lfd.learners.tracking_kernel import nearest_point_fn  # here: ``import lfd`` does not import numba
 
         mod = self.module
         return nearest_point_fn(mod.ref.numpy(), mod.dref.numpy(), self.norm.goal, float(self.norm.scale), mod.rate,
                                 mod.eps ** 2, 1.0 / self.duration, mod.phase_stop, PHASE_END)
-
-    def _point_fn_normalized(self) -> Callable[[np.ndarray], np.ndarray]:
-        """The autonomous view (``TrackingModule.forward``) for one point, in numpy."""
-        ref, dref = self.module.ref.numpy().copy(), self.module.dref.numpy().copy()
-        k, eps2, inv_t, m = self.module.rate, self.module.eps ** 2, 1.0 / self.duration, ref.shape[0]
-        stop = self.module.phase_stop
-
-        def f(xn: np.ndarray) -> np.ndarray:
-            j = int(np.argmin(((ref - xn) ** 2).sum(1)))
-            e = xn - ref[j]
-            end = min(max((m - 1 - j) / ((m - 1) * PHASE_END), 0.0), 1.0)
-            sdot = (inv_t / (1.0 + float(e.dot(e)) / eps2) if stop else inv_t) * end
-            return sdot * dref[j] - k * e
-
-        return f
-
-
-def _numpy_phase_point_fn(ref: np.ndarray, dref: np.ndarray, goal: np.ndarray, sc: float, k: float, eps2: float,
-                          inv_t: float, stop: bool, clock_weight: Callable[[np.ndarray], float] | None = None
-                          ) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
-    """Eqs. (T3)-(T4) (with ``clock_weight``, Eq. (T4b)) for one point in numpy: (x (d,), s) ->
-    (dx/dt (d,), ds/dt), user units (``TrackingField.phase_point_fn``'s arguments and tables;
-    the twin of ``lfd.learners.tracking_kernel.phase_point_fn``)."""
-    m = ref.shape[0]
-    hs = 1.0 / (m - 1)
-
-    def f(x: np.ndarray, s: float) -> tuple[np.ndarray, float]:
-        u = min(max(s, 0.0), 1.0) * (m - 1)
-        i0 = min(int(u), m - 2)
-        a0, b0, a1, b1, da0, db0, da1, db1 = _hermite_weights(u - i0, None)
-        p0, p1, m0, m1 = ref[i0], ref[i0 + 1], dref[i0] * hs, dref[i0 + 1] * hs
-        r = a0 * p0 + b0 * m0 + a1 * p1 + b1 * m1
-        dr = (da0 * p0 + db0 * m0 + da1 * p1 + db1 * m1) / hs
-        xn = (np.asarray(x, dtype=np.float64) - goal) / sc
-        e = xn - r
-        end = min(max((1.0 - s) / PHASE_END, 0.0), 1.0)
-        if not stop:
-            sdot = inv_t * end
-        elif clock_weight is None:
-            sdot = inv_t / (1.0 + float(e.dot(e)) / eps2) * end
-        else:   # Eq. (T4b)
-            h = 1.0 / (1.0 + float(e.dot(e)) / eps2)
-            sdot = inv_t * (h + clock_weight(x) * (1.0 - h)) * end
-        return (sdot * dr - k * e) * sc, sdot
-
-    return f
 
 
 # ---------------------------------------------------------------- learning: lfd.learners.tracking_reference

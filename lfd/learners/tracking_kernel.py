@@ -1,15 +1,18 @@
-"""The tracking field for one point, compiled: Eqs. (T3)-(T4) and the autonomous view in numba.
+"""The tracking field for one point, compiled: Eqs. (T3)-(T4b) and the autonomous view in numba.
 
 ``TrackingField.phase_point_fn`` and ``TrackingField.single_point_evaluator`` run once per control
-step; their numpy versions make a dozen numpy calls per point (and the autonomous view a search
-over every tabulated reference point), whose call overhead dominates at these sizes.
-``phase_point_fn`` and ``nearest_point_fn`` build one-call versions on a snapshot of the tables:
-the cubic Hermite reference (Eqs. (T1)-(T2)) and the phase law (Eq. (T4)) with the same operations
-in the same order, so they agree with the numpy versions to round-off; the nearest reference point
-is found by a compiled scan that drops a candidate as soon as its partial squared distance reaches
-the best so far (the same point as numpy's ``argmin``, the first of equals). Compiled once per
-machine (``cache=True``); this module is imported on first use, so ``import lfd`` never pays for
-numba.
+step, where a dozen numpy calls per point (and for the autonomous view a search over every tabulated
+reference point) would cost more in call overhead than in arithmetic. ``phase_point_fn`` and
+``nearest_point_fn`` build one-call versions on a snapshot of the tables: the cubic Hermite
+reference (Eqs. (T1)-(T2)) and the phase law (Eq. (T4), or Eq. (T4b) with a clock weight computed
+in Python per call); the nearest reference point is found by a compiled scan that drops a candidate
+as soon as its partial squared distance reaches the best so far (the same point as numpy's
+``argmin``, the first of equals). Compiled once per machine (``cache=True``); this module is
+imported on first use, so ``import lfd`` never pays for numba.
+
+Written once: these kernels are the only single-point Eqs. (T3)-(T4b) outside tests; the tests
+compare them with a numpy reference (tests/reference_kernels.py). ``TrackingModule``
+(``lfd.learners.tracking``) is not a twin: it is the batched torch path of rollouts of many starts.
 """
 
 from __future__ import annotations
@@ -25,17 +28,20 @@ __all__ = ["nearest_point_fn", "phase_point_fn"]
 
 # prm: goal (d), then these scalars
 _SCALE, _RATE, _EPS2, _INV_T, _STOP, _PHASE_END = range(6)
+#: the clock weight omega that ``phase_velocity`` reads as "no weight": Eq. (T4) as is
+NO_CLOCK = -1.0
 
 
 @numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
-def phase_velocity(x: np.ndarray, s: float, ref: np.ndarray, dref: np.ndarray, prm: np.ndarray,
+def phase_velocity(x: np.ndarray, s: float, ref: np.ndarray, dref: np.ndarray, prm: np.ndarray, omega: float,
                    out: np.ndarray) -> float:  # pragma: no cover - compiled
     """Eqs. (T3)-(T4) at x (d,), user units, and the phase s: out (d,) <- dx/dt, user units;
     returns ds/dt.
 
     ref, dref : (M, d) r(s_j) and r'(s_j) at s_j = j / (M - 1), normalised units (cubic Hermite
     between them); prm : goal (d), then the scale s, K, eps^2, 1 / T, phase stopping (1 or 0) and
-    the phase end c of Eq. (T4).
+    the phase end c of Eq. (T4); omega : the clock weight in [0, 1] of Eq. (T4b), h + omega (1 - h)
+    in place of the phase stopping h, or ``NO_CLOCK`` for Eq. (T4) as is.
     """
     m, d = ref.shape
     if x.shape[0] != d or out.shape[0] != d:
@@ -56,8 +62,11 @@ def phase_velocity(x: np.ndarray, s: float, ref: np.ndarray, dref: np.ndarray, p
     end = min(max((1.0 - s) / prm[o + _PHASE_END], 0.0), 1.0)
     if prm[o + _STOP] == 0.0:
         sdot = prm[o + _INV_T] * end
-    else:
+    elif omega < 0.0:
         sdot = prm[o + _INV_T] / (1.0 + ee / prm[o + _EPS2]) * end
+    else:   # Eq. (T4b)
+        h = 1.0 / (1.0 + ee / prm[o + _EPS2])
+        sdot = prm[o + _INV_T] * (h + omega * (1.0 - h)) * end
     da0, db0, da1, db1 = 6 * w2 - 6 * w, 3 * w2 - 4 * w + 1, -6 * w2 + 6 * w, 3 * w2 - 2 * w
     for j in range(d):
         dr = (da0 * ref[i0, j] + db0 * (dref[i0, j] * hs) + da1 * ref[i0 + 1, j]
@@ -117,7 +126,8 @@ def _tables(ref: np.ndarray, dref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def phase_point_fn(ref: np.ndarray, dref: np.ndarray, goal: np.ndarray, scale: float, rate: float, eps2: float,
-                   inv_t: float, stop: bool, phase_end: float
+                   inv_t: float, stop: bool, phase_end: float,
+                   clock_weight: Callable[[np.ndarray], float] | None = None
                    ) -> Callable[[np.ndarray, float], tuple[np.ndarray, float]]:
     """(x (d,), s) -> (dx/dt (d,), ds/dt), user units, Eqs. (T3)-(T4), compiled.
 
@@ -133,24 +143,38 @@ def phase_point_fn(ref: np.ndarray, dref: np.ndarray, goal: np.ndarray, scale: f
         Phase stopping h of Eq. (T4) (else h = 1).
     phase_end : float
         c of Eq. (T4): the phase slows linearly over its last ``phase_end``.
+    clock_weight : callable, optional
+        x (d,), user units -> omega in [0, 1]: Eq. (T4b), called once per call in Python (not at
+        all without phase stopping, where it changes nothing). None: Eq. (T4) as is.
 
     Returns
     -------
     callable
-        A fresh array and a float per call; reentrant.
+        A fresh array and a float per call; reentrant. The kernel is compiled or loaded here, not in
+        the first control step.
     """
     ref, dref = _tables(ref, dref)
     prm = _params(goal, scale, rate, eps2, inv_t, stop, phase_end)
     kernel, f64, empty, d = phase_velocity, np.dtype(np.float64), np.empty, ref.shape[1]
+    kernel(np.zeros(d), 0.0, ref, dref, prm, NO_CLOCK, empty(d))
 
-    def f(x: np.ndarray, s: float) -> tuple[np.ndarray, float]:
+    if clock_weight is None or not stop:
+        def f(x: np.ndarray, s: float) -> tuple[np.ndarray, float]:
+            if type(x) is not np.ndarray or x.dtype is not f64:
+                x = np.asarray(x, dtype=np.float64)
+            out = empty(d)
+            return out, kernel(x, float(s), ref, dref, prm, NO_CLOCK, out)
+
+        return f
+    weight = clock_weight
+
+    def f_clock(x: np.ndarray, s: float) -> tuple[np.ndarray, float]:
         if type(x) is not np.ndarray or x.dtype is not f64:
             x = np.asarray(x, dtype=np.float64)
         out = empty(d)
-        return out, kernel(x, float(s), ref, dref, prm, out)
+        return out, kernel(x, float(s), ref, dref, prm, float(weight(x)), out)
 
-    f(np.zeros(d), 0.0)   # compile or load the kernel now, not in the first control step
-    return f
+    return f_clock
 
 
 def nearest_point_fn(ref: np.ndarray, dref: np.ndarray, goal: np.ndarray, scale: float, rate: float, eps2: float,

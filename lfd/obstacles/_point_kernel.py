@@ -156,7 +156,7 @@ def modulate_unit(w: float, g: float, n0: float, n1: float, n2: float, r0: float
 def pack(units: Sequence[Any], fades: Sequence[float], reactivity: float, steer: bool, band: float,
          goal: Point3, floors: tuple[float, float], two: bool, merge_power: float) -> np.ndarray:
     """The parameters of ``modulate``: head (``HEAD``,), K units (K, ``UNIT``) and their members
-    (M, ``MEMBER``); units are ``lfd.obstacles.groups._Unit`` of static members of ``SHAPES``;
+    (M, ``MEMBER``); units are ``lfd.obstacles.groups.Unit`` of static members of ``SHAPES``;
     floors: the Gamma floor and the n . r floor inside (``lfd.obstacles.modulation``)."""
     head = [float(len(units)), float(steer), band, 1.0 / band, 1.0 / reactivity, float(1.0 / reactivity == 2.0),
             *goal, *floors, float(two), merge_power]
@@ -186,7 +186,7 @@ def _sdf(P: np.ndarray, o: int, y0: float, y1: float, y2: float) -> Point4:  # p
 
 def _geometry(P: np.ndarray, k: int, x0: float, x1: float, x2: float
               ) -> tuple[float, float, float, float, float, float, float]:  # pragma: no cover - compiled
-    """(Gamma, n (3), r (3)) of unit k at x (``_Unit.point_geometry``, static)."""
+    """(Gamma, n (3), r (3)) of unit k at x (``Unit.point_geometry``, static)."""
     K = int(P[0])
     u = HEAD + UNIT * k
     first, count, inv = int(P[u]), int(P[u + 1]), P[u + 2]

@@ -29,7 +29,7 @@ import numpy as np
 from lfd.errors import ConfigError
 from lfd.field import FieldKind, FieldWrapper, PhasedRuns, by_kind, cached_single_point_evaluator, require_kind
 from lfd.integrate import rk4_phase, rk4_step
-from lfd.obstacles.groups import _Unit
+from lfd.obstacles.groups import Unit
 from lfd.obstacles.modulation import (
     CONVERGENCE_BAND,
     DETOUR_HOLD,
@@ -137,7 +137,7 @@ class AvoidingField(FieldWrapper):
         self._fade = self.modulation.goal_fades(goals, min_goal_gamma)
 
     @property
-    def units(self) -> list[_Unit]:
+    def units(self) -> list[Unit]:
         """The modulation units (``lfd.obstacles.groups``): single obstacles and merged groups."""
         return self.modulation.units
 

@@ -29,11 +29,13 @@ from lfd.errors import ConfigError
 from lfd.obstacles._point_kernel import EPS, pad3
 from lfd.obstacles.shapes import Obstacle
 
+__all__ = ["MERGE_POWER", "Unit", "group"]
+
 #: exponent p of the smooth minimum that merges overlapping obstacles
 MERGE_POWER = 8.0
 
 
-class _Unit:
+class Unit:
     """One modulation unit: a single obstacle, or overlapping static obstacles merged by the smooth
     minimum of their Gammas around a common reference point."""
 
@@ -54,13 +56,13 @@ class _Unit:
         y = x - off
         if len(self.members) == 1:
             o = self.obstacle
-            sdf, n = o._sdf(y)
+            sdf, n = o.sdf(y)
             g = 1.0 + sdf / o.size
         else:
             p = MERGE_POWER
             gs, grads = [], []
             for o in self.members:
-                sdf, n_k = o._sdf(y)
+                sdf, n_k = o.sdf(y)
                 gs.append(np.maximum(1.0 + sdf / o.size, EPS))
                 grads.append(n_k / o.size)
             G = np.stack(gs)                                          # (K, B)
@@ -80,9 +82,9 @@ class _Unit:
         o = self.obstacle
         sqrt = math.sqrt
         if len(self.members) == 1:
-            sdf, inv = o._point_sdf3(), 1.0 / o.size
+            sdf, inv = o.point_sdf3(), 1.0 / o.size
         else:
-            sdfs = [(m._point_sdf3(), 1.0 / m.size) for m in self.members]
+            sdfs = [(m.point_sdf3(), 1.0 / m.size) for m in self.members]
             p = MERGE_POWER
 
             def sdf(y0: float, y1: float, y2: float) -> tuple[float, float, float, float]:
@@ -128,9 +130,25 @@ class _Unit:
         return geom_moving
 
 
-def _group(obstacles: list[Obstacle]) -> list[_Unit]:
+def group(obstacles: list[Obstacle]) -> list[Unit]:
     """Merge overlapping obstacles (connected components of the overlap graph) into units with a
-    common reference point: the point that minimises max_k Gamma_k (the deepest common point)."""
+    common reference point: the point that minimises max_k Gamma_k (the deepest common point).
+
+    Parameters
+    ----------
+    obstacles : list of Obstacle
+        The obstacles, of one dimension.
+
+    Returns
+    -------
+    list of Unit
+        One unit per connected component: a lone obstacle keeps its own reference point.
+
+    Raises
+    ------
+    ConfigError
+        Overlapping obstacles of which one moves, or a chain of overlaps without a common interior point.
+    """
     n = len(obstacles)
     parent = list(range(n))
 
@@ -157,7 +175,7 @@ def _group(obstacles: list[Obstacle]) -> list[_Unit]:
     for idx in groups.values():
         members = [obstacles[i] for i in idx]
         if len(members) == 1:
-            units.append(_Unit(members, members[0].reference))
+            units.append(Unit(members, members[0].reference))
             continue
         from scipy.optimize import minimize
 
@@ -170,5 +188,5 @@ def _group(obstacles: list[Obstacle]) -> list[_Unit]:
         if worst(res.x) >= 1.0:
             raise ConfigError("obstacles " + ", ".join(str(i) for i in idx) + " overlap in a chain without a "
                               "common interior point: split them or make them overlap pairwise")
-        units.append(_Unit(members, np.asarray(res.x, dtype=np.float64)))
+        units.append(Unit(members, np.asarray(res.x, dtype=np.float64)))
     return units

@@ -24,7 +24,7 @@ from lfd.obstacles._point_kernel import (
     steer,
 )
 from lfd.obstacles._point_kernel import compiled as kernels
-from lfd.obstacles.groups import MERGE_POWER, _group
+from lfd.obstacles.groups import MERGE_POWER, group
 from lfd.obstacles.shapes import Box, Capsule, Obstacle, Sphere
 
 __all__ = ["Modulation", "settings", "CONVERGENCE_BAND", "DETOUR_HOLD", "GOAL_FADE", "MIN_GOAL_GAMMA", "REACTIVITY"]
@@ -107,7 +107,7 @@ class Modulation:
     """
 
     def __init__(self, obstacles: Sequence[Obstacle], dim: int, reactivity: float, convergence: bool) -> None:
-        self.units = _group(list(obstacles))
+        self.units = group(list(obstacles))
         self.dim = int(dim)
         self.reactivity = float(reactivity)
         self.convergence = bool(convergence)

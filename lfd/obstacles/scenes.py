@@ -19,7 +19,7 @@ import numpy as np
 from lfd.demos import DemoSet
 from lfd.errors import ConfigError
 from lfd.obstacles.avoidance import MIN_GOAL_GAMMA
-from lfd.obstacles.groups import _group
+from lfd.obstacles.groups import group
 from lfd.obstacles.shapes import Box, Obstacle, Sphere
 
 __all__ = ["random_scene", "NEAR_GOAL_P", "NEAR_GOAL_GAP"]
@@ -56,7 +56,7 @@ def _clear(obstacles: list[Obstacle], goal: np.ndarray, starts: np.ndarray, extr
     if extra > 0:
         obstacles = [dataclasses.replace(o, margin=o.margin + extra) for o in obstacles]
     try:
-        units = _group(obstacles)
+        units = group(obstacles)
     except ConfigError:   # overlapping without a common interior point: not one star-shaped group
         return False
     for u in units:

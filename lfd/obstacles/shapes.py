@@ -14,8 +14,8 @@ margin is a rounded box. The outward normal is n = grad Gamma / |grad Gamma|; ea
 reference point inside it (the modulation's x_ref, ``lfd.obstacles.avoidance``). A moving obstacle
 is displaced by ``velocity * t`` or by a ``path(t)``.
 
-Every shape gives its geometry twice: batched numpy (``_sdf``) and one point as plain floats
-(``_point_sdf3``, the control-loop path, padded to 3-D): the helpers of ``lfd.obstacles._point_kernel``
+Every shape gives its geometry twice: batched numpy (``sdf``) and one point as plain floats
+(``point_sdf3``, the control-loop path, padded to 3-D): the helpers of ``lfd.obstacles._point_kernel``
 applied to the shape's ``point_numbers``, the arithmetic the compiled kernel inlines.
 """
 
@@ -87,7 +87,7 @@ class Obstacle(ABC):
             raise ConfigError("obstacle path must be a function of time t -> displacement (d,)")
         ref = self._center() if self.reference is None else _vec("reference", self.reference, dim)
         self.reference = ref
-        if 1.0 + float(self._sdf(ref[None])[0][0]) / self.size >= 1.0:   # in the obstacle's frame
+        if 1.0 + float(self.sdf(ref[None])[0][0]) / self.size >= 1.0:   # in the obstacle's frame
             raise ConfigError(f"the reference point {ref.tolist()} is not inside the {self.describe()}")
 
     @staticmethod
@@ -120,18 +120,35 @@ class Obstacle(ABC):
         """l: radius [units] of the bounding sphere of the grown shape, Gamma's length scale."""
 
     @abstractmethod
-    def _sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distance to the grown shape, shape (B,), and outward normal, shape (B, d), of
-        the points y, shape (B, d), in the frame at t = 0."""
+    def sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance to the grown shape and its outward normal, in the frame at t = 0.
+
+        Parameters
+        ----------
+        y : ndarray, shape (B, d)
+            Points in the obstacle's frame at t = 0 (a moving obstacle's offset already taken off).
+
+        Returns
+        -------
+        sdf : ndarray, shape (B,)
+            Signed distance to the grown shape: > 0 outside, 0 on the surface, < 0 inside.
+        normal : ndarray, shape (B, d)
+            Outward unit normal.
+        """
 
     @abstractmethod
     def point_numbers(self) -> list[float]:
         """The shape's numbers as its ``point_sdf`` takes them before the point, padded to 3-D (packed
         for the compiled kernel too)."""
 
-    def _point_sdf3(self) -> Callable[[float, float, float], Point4]:
-        """The same for one point as plain floats, (y0, y1, y2) -> (sdf, n0, n1, n2): the
-        control-loop path, padded to 3-D (a 2-D shape has z = 0)."""
+    def point_sdf3(self) -> Callable[[float, float, float], Point4]:
+        """``sdf`` for one point as plain floats, padded to 3-D (a 2-D shape has z = 0).
+
+        Returns
+        -------
+        callable
+            (y0, y1, y2) -> (sdf, n0, n1, n2): the control-loop path, no arrays.
+        """
         return functools.partial(self.point_sdf, *self.point_numbers())
 
     @abstractmethod
@@ -171,14 +188,14 @@ class Obstacle(ABC):
         """
         x = np.asarray(x, dtype=np.float64)
         y = x.reshape(-1, self.dim) - (self.offset(t) if self.moving else 0.0)
-        sdf, _ = self._sdf(y)
+        sdf, _ = self.sdf(y)
         return (1.0 + sdf / self.size).reshape(x.shape[:-1])
 
     def normal(self, x: np.ndarray, t: float = 0.0) -> np.ndarray:
         """Outward unit normal n = grad Gamma / |grad Gamma|, shape (..., d), of x : (..., d)."""
         x = np.asarray(x, dtype=np.float64)
         y = x.reshape(-1, self.dim) - (self.offset(t) if self.moving else 0.0)
-        return self._sdf(y)[1].reshape(x.shape)
+        return self.sdf(y)[1].reshape(x.shape)
 
     def surface_points(self, n: int = 256, seed: int = 0) -> np.ndarray:
         """n points, shape (n, d), on the surface Gamma = 1 at t = 0: bisection along random rays
@@ -237,7 +254,7 @@ class Sphere(_CentredObstacle):
     def size(self) -> float:
         return float(self.radius + self.margin)
 
-    def _sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = y - self.center                                   # (B, d)
         dist = np.linalg.norm(q, axis=1)                      # (B,)
         n = q / np.maximum(dist, EPS)[:, None]
@@ -272,7 +289,7 @@ class Box(_CentredObstacle):
     def size(self) -> float:
         return float(np.linalg.norm(self.half_sizes) + self.margin)
 
-    def _sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = y - self.center                                   # (B, d)
         a = np.abs(q) - self.half_sizes                       # (B, d) distance past each face pair
         o = np.maximum(a, 0.0)
@@ -316,7 +333,7 @@ class Capsule(Obstacle):
     def size(self) -> float:
         return float(0.5 * np.linalg.norm(self.b - self.a) + self.radius + self.margin)
 
-    def _sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def sdf(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ab = self.b - self.a
         s = np.clip((y - self.a) @ ab / max(float(ab @ ab), EPS), 0.0, 1.0)   # (B,)
         q = y - (self.a + s[:, None] * ab)                                      # (B, d)
@@ -335,7 +352,7 @@ class Capsule(Obstacle):
         (``capsule_sdf``)."""
         b = pad3(self.b - self.a)
         return [*pad3(self.a), *b, max(b[0] * b[0] + b[1] * b[1] + b[2] * b[2], EPS),
-                float(self.radius + self.margin), *pad3(self._sdf(self._center()[None])[1][0])]
+                float(self.radius + self.margin), *pad3(self.sdf(self._center()[None])[1][0])]
 
     def describe(self) -> str:
         return f"capsule from {_fmt(self.a)} to {_fmt(self.b)} radius {self.radius:g}{self._margin_text()}"

@@ -4,7 +4,7 @@ A ``Page`` (``lfd.pages.page``) is plain data: what was run, the verdict (senten
 words, tables with the best value of each group marked and each number's place in the data file),
 the videos, the figures and the data files; ``write_page`` (``lfd.pages.render``) writes it through
 a Jinja2 template, with nothing loaded from the network. The callers assemble their pages: the arm
-job (``sim.job_page``), the sweep (``sim.studies.sweep_page``), ``lfd bench`` (``lfd.bench.report_page``).
+job (``sim.media.job_page``), the sweep (``sim.studies.sweep_page``), ``lfd bench`` (``lfd.bench.report_page``).
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from robots.errors import RobotError
+from robots.ik.gains import JointGains
 from robots.ik.position import solve_pose_ik, solve_position_ik
 from robots.kinematics import Kinematics
 from robots.model import RobotModel
@@ -56,6 +57,36 @@ class DifferentialIK:
         self.rows = _check_rows(rows, robot)
         self.kinematics = Kinematics(robot)
         self._impl = getattr(module, class_name)(robot, self.rows, self.kinematics, gains_cls(**gains))
+
+    @property
+    def gains(self) -> JointGains:
+        """The back-end's gains as it took them (``DlsGains`` or ``PinkGains``)."""
+        gains: JointGains = self._impl.gains
+        return gains
+
+    def fast_params(self, dt: float) -> dict[str, np.ndarray | float]:
+        """The constants of the "dls" back-end's fast path at step dt [s], for a compiled copy of it.
+
+        Parameters
+        ----------
+        dt : float
+            The control step [s].
+
+        Returns
+        -------
+        dict of str to ndarray or float
+            ``robots.ik.dls.DlsBackend.fast_params``: ``q_home``, ``mid``, ``fast_half``, ``posture_gain``,
+            ``eps2`` and ``fast_speed2``.
+
+        Raises
+        ------
+        RobotError
+            Another back-end, which has no fast path.
+        """
+        if self.backend != "dls":
+            raise RobotError(f"IK backend '{self.backend}' has no fast path (only 'dls' has)")
+        params: dict[str, np.ndarray | float] = self._impl.fast_params(float(dt))
+        return params
 
     @property
     def limit_hits(self) -> int:

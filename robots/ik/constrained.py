@@ -9,7 +9,7 @@ z = k_p (q_home - q) the posture pull of ``robots.ik.dls`` and mu > 0 a small re
 from every bound and singularity the task is met to O(mu) and the posture term acts in J's null
 space, as in ``DlsBackend``.
 A joint already beyond a soft bound may stay there (its bound is widened to 0). The rows (A, b)
-come from the caller; ``sim.collision`` builds one velocity damper per (arm geom, obstacle) pair
+come from the caller; ``sim.scene.collision`` builds one velocity damper per (arm geom, obstacle) pair
 (Faverjon and Tournassoud 1987).
 
 Solved by DAQP (Arnström, Bemporad and Axehill 2022; a dependency of pink). If the rows conflict

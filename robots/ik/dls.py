@@ -64,7 +64,7 @@ class DlsBackend:
         self.limit_hits = 0
 
     def fast_params(self, dt: float) -> dict[str, np.ndarray | float]:
-        """The constants of the fast path at step dt [s], for a compiled copy of it (``sim.controller``).
+        """The constants of the fast path at step dt [s], for a compiled copy of it (``sim.control.controller``).
 
         Returns ``q_home`` (n,), ``mid`` (n,), ``fast_half`` (n,) (the limit test |q - mid| <= fast_half),
         ``posture_gain``, ``eps2`` (eps^2 of the Cholesky test) and ``fast_speed2`` (the speed test |qdot|^2 <=

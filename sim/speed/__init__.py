@@ -4,7 +4,8 @@ asserts nothing; ``--quick`` runs any of them in seconds (a smoke test: its numb
 
 ``SUBCOMMANDS`` names each one's module and says what it measures; their shared timing code is in
 ``sim.speed.timing``, and the copies of the control loop's step that ``loop`` times stage by stage
-are in ``sim.speed.instrumented`` (the one place that reaches into the loop's internals).
+are in ``sim.speed.instrumented`` (the one place that reaches into the loop's internals). The top
+group of ``sim``: it may import every other (pyproject.toml's import contracts).
 """
 
 #: subcommand -> (its module, what it measures)
@@ -16,5 +17,5 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "loop": ("sim.speed.loop", "one closed-loop control step against a bare mj_step; actuations, planes"),
     "obstacles": ("sim.speed.obstacles", "obstacle avoidance and moving goals in task space: cost and results"),
     "arm-clearance": ("sim.speed.arm_clearance", "what whole-arm clearance costs per control step on the Panda"),
-    "render": ("sim.speed.render", "video frames per second of sim.render (GL, overlays, H.264)"),
+    "render": ("sim.speed.render", "video frames per second of sim.media.render (GL, overlays, H.264)"),
 }

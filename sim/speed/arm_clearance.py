@@ -4,7 +4,7 @@ The user's 3-demo spiral with 3 obstacles on and beside its path (the user's sph
 sphere), the contraction field avoiding them (``lfd.avoid``, with the hand margin). Three
 variants of the same run, interleaved ``--repeats`` times: ``bare``, no obstacles, the plain field;
 ``tool point``, the obstacles in the scene and the field, no dampers (``clearance=None``);
-``whole arm``, the default, the dampers of ``sim.collision`` and the QP of ``robots.ik.constrained``
+``whole arm``, the default, the dampers of ``sim.scene.collision`` and the QP of ``robots.ik.constrained``
 (split ``mj_step1``/``mj_step2``; each step checks the dampers against the DLS step with
 ``ArmClearance.check`` and solves the QP only where one binds).
 
@@ -17,6 +17,7 @@ the steps with a pair within reach. Wall clock: note the load average printed wi
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -26,9 +27,7 @@ import sim
 from lfd.cache import cached_field
 from lfd.obstacles import Box, Obstacle, Sphere
 from robots import load_robot
-from sim.collision import hand_margin_m
-from sim.controller import Gains
-from sim.pipeline import OBSTACLE_LEAD_S, grown
+from sim.run.obstacle_runs import ObstacleRuns
 from sim.speed.timing import load
 from sim.speed.trained import QUICK_DURATION_S
 from sim.studies.obstacles import arc_point, spiral3, user_case
@@ -62,10 +61,10 @@ def run(args: argparse.Namespace) -> int:
         field, _, _ = cached_field("contraction", demos, 0, {}, verbose=False)
     bare = sim.Experiment(robot, demos, clearance=None)
     scale = bare.placement.scale
-    avoiding = lfd.avoid(field, grown(obstacles, hand_margin_m(robot) / scale))
-    gains = Gains(lead_s=OBSTACLE_LEAD_S)
-    tool = sim.Experiment(robot, demos, obstacles=obstacles, gains=gains, clearance=None)
-    arm = sim.Experiment(robot, demos, obstacles=obstacles, gains=gains)
+    among = ObstacleRuns(time_factor=1.0)      # a job's settings among obstacles, runs as long as the bare one
+    avoiding = among.avoiding(field, obstacles, robot, scale)
+    tool = dataclasses.replace(among, arm_clearance=False).experiment(robot, demos, obstacles)
+    arm = among.experiment(robot, demos, obstacles)
     variants: dict[str, tuple[sim.Experiment, Any]] = {"bare": (bare, field), "tool point": (tool, avoiding),
                                                         "whole arm": (arm, avoiding)}
     steps: dict[str, list[np.ndarray]] = {k: [] for k in variants}

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 from lfd.errors import LfdError
 from sim.errors import SimError
-from sim.parsing import OneLineParser, fail
+from sim.run.parsing import OneLineParser, fail
 from sim.speed import SUBCOMMANDS
 
 __all__ = ["main"]

@@ -18,7 +18,7 @@ import numpy as np
 import sim
 from lfd.errors import ConfigError
 from robots import IK_BACKENDS, load_robot
-from sim.parsing import names
+from sim.run.parsing import names
 from sim.speed.instrumented import replay_ik
 from sim.speed.timing import load
 from sim.speed.trained import add_field_arguments, field_of

@@ -2,9 +2,9 @@
 and ``sim.speed.ik``.
 
 The one module of ``sim.speed`` that reaches into the loop's internals: the task's control step
-(``sim.step.ControlStep``: ``begin``, ``field_point``, ``command``, ``end``, as ``sim.loop`` calls
+(``sim.control.step.ControlStep``: ``begin``, ``field_point``, ``command``, ``end``, as ``sim.control.loop`` calls
 it), the dm_env environment of an experiment (``Experiment.environment``) and the controller's IK
-(``sim.controller.FieldController``). When the step changes, these change with it.
+(``sim.control.controller.FieldController``). When the step changes, these change with it.
 
 - ``breakdown``: per-stage wall times of the loop's step;
 - ``env_steps``: the dm_env ``Environment.step`` of the same run, timed step by step;
@@ -23,19 +23,19 @@ import numpy as np
 
 import sim
 from lfd.field import Field
-from sim.controller import FieldController
-from sim.task import ArmPhysics
+from sim.control.controller import FieldController
+from sim.control.task import ArmPhysics
 
 __all__ = ["STAGES", "breakdown", "env_steps", "interleaved_steps", "replay_ik"]
 
 STAGES = ("begin: mj_step1, q, tool pose", "field f(x)", "command: twist, IK, actuators", "end: mj_step2")
-#: the MuJoCo warnings that mean the simulation diverged (those ``sim.loop`` checks)
+#: the MuJoCo warnings that mean the simulation diverged (those ``sim.control.loop`` checks)
 DIVERGENCE = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                                     mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADCTRL))
 
 
 def breakdown(exp: sim.Experiment, field: Field, steps: int) -> dict[str, np.ndarray]:
-    """Per-stage wall times of ``steps`` control steps of the loop (``sim.loop``'s calls of the task's
+    """Per-stage wall times of ``steps`` control steps of the loop (``sim.control.loop``'s calls of the task's
     ``ControlStep`` and the field's runner, timed one by one; "field f(x)" includes the task point
     x), shape (steps,) each, by stage name (``STAGES``)."""
     env = exp.environment()
@@ -86,7 +86,7 @@ def env_steps(env: Any, field: Field, steps: int) -> tuple[np.ndarray, float]:
 def interleaved_steps(exp: sim.Experiment, field: Field, blocks: int,
                       block: int = 100) -> tuple[np.ndarray, np.ndarray]:
     """Wall times of dm_env ``Environment.step`` (policy as ``env_steps``) and of the loop's step
-    (the calls of ``sim.loop``'s loop, recording q, qdot, p and v as it does), in ``blocks`` pairs of
+    (the calls of ``sim.control.loop``'s loop, recording q, qdot, p and v as it does), in ``blocks`` pairs of
     ``block`` steps each, alternating, on two copies of the model: short blocks, so that load on the
     machine hits both alike, each warm in its block (alternating every step would leave both cold,
     which flatters the environment). Returns each one's per-block medians, shape (blocks,). Episodes

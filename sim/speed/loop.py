@@ -2,7 +2,7 @@
 choice of actuation by measurement.
 
 Part 1 (cost), for each field of ``--learner`` (default: node and contraction): the control
-step of ``sim.loop.execute`` (``sim.step.ControlStep``: ``mj_step1``, state, tool pose, the field's
+step of ``sim.control.loop.execute`` (``sim.control.step.ControlStep``: ``mj_step1``, state, tool pose, the field's
 runner at the measured point, twist + IK + actuator command, perturbations, ``mj_step2``) timed step by step,
 and a bare ``mujoco.mj_step`` of the same model at the run's start, at rest, measured in the
 same run in interleaved blocks (so machine load hits both alike). Prints median and p95 of each
@@ -16,7 +16,7 @@ target: its median <= 1.3x the loop's), and the same ratio against the loop's st
 alternating blocks on two copies of the model (load hits both alike). A summary closes the run.
 
 Part 2 (actuation): tracking and push metrics of the same field with position servos (velocity
-feed-forward, and the plain u = q + qdot dt) and with computed torque (``sim.controller``).
+feed-forward, and the plain u = q + qdot dt) and with computed torque (``sim.control.controller``).
 Part 3 (plane): the same for a 2-D field on a horizontal and on a vertical task plane.
 
 Timings are wall clock: note the machine load (printed) when you quote them.
@@ -36,10 +36,10 @@ import sim
 from lfd.errors import ConfigError
 from lfd.field import Field
 from robots import load_robot
-from sim.scaling import bare_steps, holding_data
 from sim.speed.instrumented import breakdown, env_steps, interleaved_steps
 from sim.speed.timing import each_call_s, load, median_ratio, none_and_push, stats
 from sim.speed.trained import add_field_arguments, field_of
+from sim.studies.scaling_control import bare_steps, holding_data
 
 __all__ = ["actuation", "add_arguments", "cost", "planes", "run"]
 

@@ -28,7 +28,7 @@ import torch
 import lfd
 from lfd.goal import shift_goal
 from lfd.obstacles import Box, Capsule, Obstacle, Sphere, avoid, starts_outside
-from sim.parsing import names
+from sim.run.parsing import names
 from sim.speed.timing import load
 
 __all__ = ["add_arguments", "cost", "on_path", "reach", "run"]

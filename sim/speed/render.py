@@ -1,4 +1,4 @@
-"""Speed: video frames per second of ``sim.render`` (offscreen GL, overlays and H.264 encoding).
+"""Speed: video frames per second of ``sim.media.render`` (offscreen GL, overlays and H.264 encoding).
 
 Runs a field (the ``tracking`` learner, trained in a moment) on ``--robot`` under three pushes
 (seeds 0, 1, 2), then writes, in interleaved repeats (so machine load hits each case alike):
@@ -31,7 +31,7 @@ import lfd
 import sim
 from lfd.errors import ConfigError
 from robots import load_robot
-from sim.parsing import names
+from sim.run.parsing import names
 from sim.speed.timing import load
 from sim.speed.trained import demos_of
 

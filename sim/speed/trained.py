@@ -11,7 +11,7 @@ import lfd
 from lfd.cache import cached_field
 from lfd.errors import ConfigError
 from robots.loader import ACTUATIONS
-from sim.parsing import names
+from sim.run.parsing import names
 
 __all__ = ["QUICK_TRAINING", "add_field_arguments", "demos_of", "field_of"]
 

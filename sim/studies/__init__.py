@@ -9,7 +9,10 @@ run by one thin script in ``scripts/``:
 - ``sim.studies.robottasks`` (``scripts/robottasks_arm.py``): the nine RoboTasks9 tasks on the Panda,
   where recorded -> reports/robottasks_arm.md;
 - ``sim.studies.scaling`` (``scripts/scaling.py``): the learners' and the control step's scaling
-  curves -> reports/scaling.md (text and figures: ``sim.studies.scaling_report``).
+  curves -> reports/scaling.md (the control step's measurement: ``sim.studies.scaling_control``; text
+  and figures: ``sim.studies.scaling_report``).
+
+Above ``sim.run`` (a study runs jobs) and below ``sim.speed`` (pyproject.toml's import contracts).
 
 The report commands take ``--quick``: a smoke test that writes its report under ``out/`` (not ``reports/``).
 """

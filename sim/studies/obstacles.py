@@ -5,8 +5,8 @@ The demos are a user's 3-demo spiral (extent 0.23 units, radius 0.13). Scene 0 i
 case: a sphere of 6 % of the extent on the first demo at 40 % of its arc length, no margin.
 Scenes 1.. are ``lfd.obstacles.random_scene`` (1 to 3 spheres or boxes, a quarter beside the
 goal). Every run uses the job's defaults (``sim.run_job``): the field keeps the tool point the
-hand's size (``sim.collision.hand_margin_m``) plus each obstacle's margin away, and the IK's
-collision dampers keep every arm geom clear (``sim.collision``). Per run: contact steps between
+hand's size (``sim.scene.collision.hand_margin_m``) plus each obstacle's margin away, and the IK's
+collision dampers keep every arm geom clear (``sim.scene.collision``). Per run: contact steps between
 any robot geom and any obstacle (the joints replayed through MuJoCo's collision detection), the
 final goal error, ``blocked``, the smallest clearance and the real-time factor. Runs are cached
 (``--cache``, ``lfd.bench.runner.run_cells``), so a killed sweep resumes. ``--quick``: the user's
@@ -32,11 +32,9 @@ from lfd.io import atomic_write, check_writable, kept_section
 from lfd.obstacles import Obstacle, Sphere, random_scene
 from lfd.obstacles.avoidance import settings
 from robots import load_robot
-from sim.collision import hand_margin_m
-from sim.controller import Gains
-from sim.obstacles import obstacle_contacts
-from sim.parsing import OneLineParser, fail
-from sim.pipeline import OBSTACLE_LEAD_S, OBSTACLE_TIME_FACTOR, grown
+from sim.run.obstacle_runs import OBSTACLE_TIME_FACTOR, ObstacleRuns
+from sim.run.parsing import OneLineParser, fail
+from sim.scene.obstacles import obstacle_contacts
 
 __all__ = ["COST_HEADING", "Cell", "LEARNERS", "arc_point", "compute", "main", "report", "spiral3", "user_case"]
 
@@ -79,14 +77,14 @@ def compute(cell: Cell) -> tuple[dict[str, Any], bytes]:
     """Run one cell: (its record, an empty NPZ archive)."""
     demos = spiral3()
     robot = load_robot("panda")
-    hand = hand_margin_m(robot)
+    among = ObstacleRuns()                      # as sim.run_job sets up a run among obstacles
+    hand = among.hand_margin_m(robot)
     probe = sim.Experiment(robot, demos, clearance=None)
     scale = probe.placement.scale
     scene = user_case(demos) if cell.scene == 0 else random_scene(demos, cell.scene, extra_margin=hand / scale)
-    exp = sim.Experiment(robot, demos, obstacles=scene, gains=Gains(lead_s=OBSTACLE_LEAD_S),
-                         time_factor=OBSTACLE_TIME_FACTOR)   # as sim.run_job builds it with obstacles
+    exp = among.experiment(robot, demos, scene)
     field, _, _ = cached_field(cell.learner, demos, 0, {}, verbose=False)
-    avoiding = lfd.avoid(field, grown(scene, hand / scale))
+    avoiding = among.avoiding(field, scene, robot, scale)
     runs = []
     for name in cell.scenarios:
         r = exp.run(avoiding, name)
@@ -155,10 +153,10 @@ def report(recs: list[dict], placements: int, learners: tuple[str, ...] = LEARNE
              f"(placed at {scale:.3f} m per unit): scene 0 is the user's case (a sphere of 6 % of the extent "
              "on the path, no margin), the others `lfd.obstacles.random_scene` (1-3 spheres or boxes, "
              "3-10 % of the extent, margins 0-4 %, a quarter beside the goal). Default job options: the "
-             f"field keeps the tool point the hand's size ({hand * 1e3:.1f} mm, `sim.collision.hand_margin_m`) "
+             f"field keeps the tool point the hand's size ({hand * 1e3:.1f} mm, `sim.scene.collision.hand_margin_m`) "
              "plus the obstacle's margin away; collision dampers in the IK keep every arm geom 10 mm clear "
-             f"(`sim.collision`); each run lasts {OBSTACLE_TIME_FACTOR:g} x the demo's duration plus 1.5 s "
-             "(`sim.pipeline.OBSTACLE_TIME_FACTOR`). *Contact steps*: replayed states in which any robot geom "
+             f"(`sim.scene.collision`); each run lasts {OBSTACLE_TIME_FACTOR:g} x the demo's duration plus 1.5 s "
+             "(`sim.run.obstacle_runs.OBSTACLE_TIME_FACTOR`). *Contact steps*: replayed states in which any robot geom "
              f"touches any obstacle. *Reached*: final tool position within {GOAL_MM:g} mm of the goal. "
              "*Blocked*: the run ended further away with a damper holding the arm (metrics.json `blocked`).", "",
              "| learner | scenario | runs | contact steps | reached | blocked | neither | worst goal error (mm) "

@@ -19,7 +19,7 @@ from lfd.errors import LfdError
 from lfd.io import atomic_write, check_writable
 from robots import RobotError
 from sim.errors import SimError
-from sim.parsing import OneLineParser, fail
+from sim.run.parsing import OneLineParser, fail
 
 __all__ = ["SCENARIOS", "SHIFTS", "main", "row"]
 
@@ -31,7 +31,7 @@ SCENARIOS: dict[str, tuple[str, ...]] = {"pan2stove": ("none", "push", "goal")} 
 DEFAULT_SCENARIOS = ("none", "push", "offset", "goal")
 # what ``sim.ArmJob`` and ``sim.run_job`` load on first use, imported before main with interrupts
 # deferred (lfd.interrupts.run_script)
-PRELOAD = ("sim.pipeline",)
+PRELOAD = ("sim.run.pipeline",)
 
 
 def row(task: str, scenario: str, m: dict[str, Any]) -> str:

@@ -7,7 +7,7 @@ Learner curves (``lfd.bench.scaling``): each learner trained with ``lfd.train(le
 (the DMP baseline with ``lfd.bench.dmp.fit_dmp``), its default options except where ``--iterations``
 says otherwise (the default gives the NODE a tenth of its default iterations; the report states it),
 on LASA shapes stacked into d = 2..32 dimensions, on 1..7 demos and on 250..4000 samples per demo.
-Control-step curves (``sim.scaling``): a contraction field on the planar arm, the Panda and a URDF arm
+Control-step curves (``sim.studies.scaling_control``): a contraction field on the planar arm, the Panda and a URDF arm
 (the UR5 of example-robot-data) with 0..16 spheres off the path, against a bare ``mj_step``.
 
 Every measurement is cached as one JSON file under ``--cache`` (default out/scaling, written atomically
@@ -49,8 +49,8 @@ from lfd.io import atomic_write, check_writable, write_json
 from lfd.threads import torch_threads
 from robots import RobotError
 from sim.errors import SimError
-from sim.parsing import OneLineParser, fail, names
-from sim.scaling import OBSTACLE_COUNTS, ROBOTS, load_scaling_robot, measure_control
+from sim.run.parsing import OneLineParser, fail, names
+from sim.studies.scaling_control import OBSTACLE_COUNTS, ROBOTS, load_scaling_robot, measure_control
 from sim.studies.scaling_report import (
     TARGET_EXPONENT,
     TARGET_LEARNERS,
@@ -171,8 +171,8 @@ def control_key(robot: Any, counts: tuple[int, ...], repeats: int, field_file: s
 def control_curves(counts: tuple[int, ...], robots: tuple[Any, ...], repeats: int, cache: Path,
                    progress: bool) -> tuple[list[dict[str, Any]], float, dict[str, Any]]:
     """Measure (or read) the control step of every robot at every obstacle count, and each robot's plain
-    loop (no obstacles, no dampers), one cached file per robot (``sim.scaling.measure_control``); returns
-    the records, the wall time spent measuring now and a description of the field and demos."""
+    loop (no obstacles, no dampers), one cached file per robot (``sim.studies.scaling_control.measure_control``);
+    returns the records, the wall time spent measuring now and a description of the field and demos."""
     demos = lfd.spiral()
     field, model_file, _ = cached_field(CONTROL_LEARNER, demos, 0, {}, verbose=False)
     info = {"learner": CONTROL_LEARNER, "demos": "lfd.spiral() (5 demos, 200 samples, 5 s)",

@@ -1,6 +1,6 @@
 """The text and figures of reports/scaling.md (``sim.studies.scaling`` measures, this module writes):
 the learners' exponents and curves (``lfd.bench.scaling``), the control step against the number of
-obstacles (``sim.scaling``), and where a learner's training time grows (``findings_text``).
+obstacles (``sim.studies.scaling_control``), and where a learner's training time grows (``findings_text``).
 """
 
 from __future__ import annotations
@@ -298,9 +298,10 @@ def report(learner_records: list[dict[str, Any]], control_records: list[dict[str
                   f"{control_info['learner']} field trained on {control_info['demos']} with its defaults, torque "
                   "actuation, on each robot with K spheres (radius 5 % of the demos' extent) off the path: on a "
                   "grid of 4 rows on the far side of the demos from the robot's base "
-                  "(`sim.scaling.off_path_spheres`), so the tool never comes near them. As a job runs obstacles: "
+                  "(`sim.studies.scaling_control.off_path_spheres`), so the tool never comes near them. "
+                  "As a job runs obstacles: "
                   "the field avoids them (`lfd.avoid`, grown by the hand's margin), the IK carries the whole-arm "
-                  "dampers (`sim.collision.Clearance()`, given for K = 0 too) and the servo leads by "
+                  "dampers (`sim.scene.collision.Clearance()`, given for K = 0 too) and the servo leads by "
                   "`OBSTACLE_LEAD_S`. *plain*: the loop of a job without obstacles (no dampers, plain field). "
                   f"Per point: one warm-up run, then {control_records[0]['repeats']} runs of "
                   f"{control_records[0]['steps']} steps, each followed by as many bare `mj_step` calls of the "

@@ -2,7 +2,7 @@
 or on Ray, one JSON record per run (atomic, resumable), then a summary with a robustness heatmap
 and a basin-of-attraction plot (``sim.studies.sweep_figures``). Run by ``scripts/sweep_arm.py``.
 
-Runs (each a ``sim.Experiment`` run of a learned field, ``sim.perturbations``): ``push``, a force
+Runs (each a ``sim.Experiment`` run of a learned field, ``sim.scene.perturbations``): ``push``, a force
 of each magnitude (N) for ``--push-duration`` s at ``--push-start`` s on the tool's body, along each
 of ``--directions`` directions evenly spaced in the task plane (``direction``), ``--seeds`` times,
 each seed adding a small seeded jitter to the direction; ``offset``, the run starts ``--offsets`` m
@@ -54,8 +54,8 @@ from lfd.learners import LEARNERS, get_learner
 from lfd.pages import versions, write_page
 from robots import RobotError, load_robot
 from sim.errors import SimError, SimulationError
-from sim.job_page import DISTRIBUTIONS
-from sim.parsing import OneLineParser, fail, floats, names
+from sim.media.job_page import DISTRIBUTIONS
+from sim.run.parsing import OneLineParser, fail, floats, names
 from sim.studies.sweep_figures import basin, heatmap
 from sim.studies.sweep_page import sweep_page
 
@@ -65,7 +65,7 @@ __all__ = ["KINDS", "RunSpec", "direction", "grid", "lost_record", "main", "read
 PROG = "sweep_arm"
 # what ``sim.Experiment`` and ``sim.Push`` load on first use, imported before main with interrupts deferred
 # (lfd.interrupts.run_script): an interrupt inside an import can surface as another error
-PRELOAD = ("sim.experiment", "sim.perturbations")
+PRELOAD = ("sim.run.experiment", "sim.scene.perturbations")
 KINDS: tuple[str, ...] = ("push", "offset", "goal")
 PUSH_JITTER_RAD = 0.05             # seeded jitter of a push direction per seed (radians)
 RECORD_VERSION = 1

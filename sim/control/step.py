@@ -1,0 +1,162 @@
+"""The control step, once: measure, command, perturb, advance the physics.
+
+Every control step k (t_k = k dt), on the raw MuJoCo model and data:
+
+1. ``begin``: with ``FieldController.split`` (MuJoCo's computed torque, whole-arm clearance)
+   ``mj_step1`` first, so the mass matrix, the bias forces and the geoms' poses describe this
+   state; then q of the arm joints and the tool pose p = FK(q) (MuJoCo's tool site after
+   ``mj_step1``, else Pinocchio); a pose task's chart point (``lfd.pose``, Eq. (P1));
+2. ``field_point``: the measured task point x = A^T (p - o) / s, minus a goal shift dg
+   (``sim.scene.perturbations.GoalShift``), where the field is evaluated;
+3. ``command(v)``: the task velocity v -> twist -> differential IK (with its safety rows) ->
+   actuator command (``FieldController.fast_command``), then the step's perturbations (push,
+   moving obstacles, joint-velocity noise);
+4. ``end``: ``mj_step2`` and the remaining physics steps (or ``mj_step`` without the split);
+   inside a ``Hold`` window the arm joints are then clamped at rest where the hold began.
+
+The lean loop (``sim.control.loop``), the dm_env environment's step (``sim.control.env``) and dm_control's generic
+step (``FieldTrackingTask.before_step``) all call these; the loop only adds recording.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from robots import RobotModel
+from sim.control.controller import FieldController
+from sim.scene.perturbations import Schedule
+
+_step1, _step2, _mj_step, _forward = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step, mujoco.mj_forward
+
+
+def contiguous(a: np.ndarray, idx: np.ndarray) -> np.ndarray | None:
+    """The view ``a[idx[0]:idx[-1] + 1]`` when the indices idx, shape (n,), are consecutive, else
+    None (copying a slice view costs less than fancy indexing)."""
+    lo = int(idx[0])
+    return a[lo:lo + len(idx)] if np.array_equal(idx, np.arange(lo, lo + len(idx))) else None
+
+
+class ControlStep:
+    """The control step of the module docstring for one task.
+
+    Parameters
+    ----------
+    robot : RobotModel
+        The arm (its MuJoCo joint, dof and actuator indices).
+    controller : FieldController
+        Twist -> IK -> actuator command.
+    schedule : Schedule
+        The run's perturbations, compiled (``sim.scene.perturbations.compile_schedule``).
+    n_sub : int
+        Physics steps per control step.
+
+    Attributes
+    ----------
+    k : int
+        The index of the next control step (0 after ``reset``).
+    q : ndarray, shape (n,)
+        The arm joints measured by the last ``begin`` (a view of ``qpos``: valid until ``end``).
+    p : ndarray, shape (3,)
+        The tool position measured by the last ``begin``, world, m (a view, valid until the next).
+    """
+
+    def __init__(self, robot: RobotModel, controller: FieldController, schedule: Schedule, n_sub: int) -> None:
+        self.robot, self.controller, self.schedule, self.n_sub = robot, controller, schedule, int(n_sub)
+        self.k = 0
+        self.q: np.ndarray = np.zeros(robot.n)
+        self.p: np.ndarray = np.zeros(3)
+        self._x: np.ndarray = np.zeros(controller.placement.dim)
+        self._qadr, self._dadr = np.asarray(robot.mj_qpos_adr), np.asarray(robot.mj_dof_adr)
+        self._pose = controller.placement.pose
+        self._shift = schedule.goal_offset_task
+        self._shifted = bool(np.any(self._shift != 0))
+        self._h0, self._h1 = schedule.hold_steps
+        self._q_hold: np.ndarray | None = None
+        self.model: Any = None
+        self.data: Any = None
+
+    def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Keep the raw model and data, and views of the arrays a step reads (each attribute access of
+        ``MjData`` builds a new view); binds the controller too."""
+        self.model, self.data = model, data
+        ctl = self.controller
+        ctl.bind(data)
+        self._split = ctl.split
+        # after mj_step1 the tool pose is MuJoCo's site (Pinocchio computes only what the IK needs)
+        self._measure: Callable[[np.ndarray], np.ndarray] = ctl.measure_site if ctl.split else ctl.measure
+        self._to_task, self._fast = ctl.to_task, ctl.fast_command
+        self._qpos, self._qvel = data.qpos, data.qvel
+        self._q_arm = contiguous(data.qpos, self._qadr)
+        s = self.schedule
+        self._push = s.push_body
+        self._push_row = data.xfrc_applied[max(s.push_body, 0)]
+        self._k0, self._k1 = s.push_steps
+
+    def reset(self) -> None:
+        """Start a run: the step index back to 0."""
+        self.k = 0
+        self._q_hold = None
+
+    def begin(self) -> np.ndarray:
+        """Steps 1 of the module docstring: returns the measured tool position p, shape (3,), world."""
+        if self._split:
+            _step1(self.model, self.data)
+        q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
+        p = self.p = self._measure(q)
+        if self._pose:   # the twist of a pose command is taken at the measured chart point
+            self._x = self._to_task(p)
+        if self.k == self._h0:
+            self._q_hold = q.copy()
+        return p
+
+    def field_point(self) -> np.ndarray:
+        """Step 2: the task point x - dg, shape (d,), where the field is evaluated."""
+        x = self._x if self._pose else self._to_task(self.p)
+        return x - self._shift if self._shifted else x
+
+    def begin_at_point(self) -> np.ndarray:
+        """Steps 1 and 2 in one call (the loop's): ``begin``, then the field's point x - dg, shape (d,)."""
+        if self._split:
+            _step1(self.model, self.data)
+        q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
+        p = self.p = self._measure(q)
+        if self.k == self._h0:
+            self._q_hold = q.copy()
+        x = self._x = self._to_task(p)
+        return x - self._shift if self._shifted else x
+
+    def command(self, v: np.ndarray) -> None:
+        """Step 3: write the actuator commands for the task velocity v, shape (d,), task units/s, at
+        the state measured by ``begin``, then this step's perturbations."""
+        model, data, k, s = self.model, self.data, self.k, self.schedule
+        self._fast(model, data, self.q, v)
+        if self._push >= 0:
+            if self._k0 <= k < self._k1:
+                self._push_row[:] = s.push_force
+            elif k == self._k1:
+                self._push_row[:] = 0.0
+        if s.mocap_pos is not None and k < len(s.mocap_pos):   # moving obstacles where they are at t_k
+            data.mocap_pos[:] = s.mocap_pos[k]
+        if s.qvel_noise is not None and k < len(s.qvel_noise):
+            data.qvel[self._dadr] += s.qvel_noise[k]
+            if self._split:   # the physics must see the noisy velocity, as a plain mj_step would
+                _step1(model, data)
+        self.k = k + 1
+
+    def end(self) -> None:
+        """Step 4: advance the physics by one control period (and clamp the arm inside a hold)."""
+        m, d, n_sub = self.model, self.data, self.n_sub
+        if self._split:
+            _step2(m, d)
+            if n_sub > 1:
+                _mj_step(m, d, n_sub - 1)
+        else:
+            _mj_step(m, d, n_sub)
+        if self._h0 <= self.k - 1 < self._h1 and self._q_hold is not None:
+            self._qpos[self._qadr] = self._q_hold
+            self._qvel[self._dadr] = 0.0
+            _forward(m, d)

@@ -1,0 +1,101 @@
+"""The arm job as one library call: plan (demos -> models -> placement -> fields), then execute (runs ->
+scores -> files).
+
+::
+
+    import sim
+    job = sim.ArmJob(robot="planar", learners=("contraction",), scenarios=("none", "push"),
+                     videos=False, out="out/quick")
+    report = sim.run_job(job)          # trains or takes cached models, runs, writes, returns
+    report.results[0].metrics          # sim.metrics' scores of the first run
+
+``sim.run.plan.plan_job`` resolves and checks the job before any simulation, and trains or loads its
+models; ``run_job`` executes the plan: each planned run on the plan's ``sim.Experiment``, the
+obstacle contacts scored, and the files written by ``sim.run.outputs.OutputSet``: staged, then moved
+into place together, ``metrics.json`` last (see ``sim.run.job_files``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sim.run.experiment import RunResult
+from sim.run.job import ArmJob, PushSpec
+from sim.run.obstacle_runs import OBSTACLE_LEAD_S, OBSTACLE_TIME_FACTOR, grown
+from sim.run.plan import JobPlan, PlannedRun, describe_goal_motion, plan_job
+from sim.scene.obstacles import obstacle_contacts
+
+__all__ = ["ArmJob", "JobReport", "OBSTACLE_LEAD_S", "OBSTACLE_TIME_FACTOR", "PushSpec", "grown", "run_job"]
+
+
+@dataclass
+class JobReport:
+    """What ``run_job`` did: the scored runs, the models and where the files went."""
+
+    results: list[RunResult]
+    side_by_side: list[RunResult]
+    grid: list[RunResult]
+    models: dict[str, dict[str, Any]]
+    out: Path
+    json_path: Path
+    n_videos: int
+    report: dict[str, Any]
+
+
+def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> JobReport:
+    """Run ``job`` (module docstring): plan, then run, score and write.
+
+    Parameters
+    ----------
+    job : ArmJob
+        The job's options.
+    on_run : callable, optional
+        Called with each scored run as it finishes.
+
+    Returns
+    -------
+    JobReport
+        The runs and where their files are (all written when this returns).
+    """
+    plan = plan_job(job)
+    done: dict[str, list[RunResult]] = {"main": [], "side": [], "grid": []}
+    t_sim = time.perf_counter()
+    for run in plan.runs:
+        same = [r for r in done["main"] if run.group == "side" and (r.learner, r.scenario) == (run.learner,
+                                                                                             run.scenario)]
+        done[run.group].append(same[0] if same else execute(plan, run, on_run))
+    t_sim = time.perf_counter() - t_sim
+    if plan.obstacles:
+        for r in {id(r): r for group in done.values() for r in group}.values():
+            contacts = obstacle_contacts(plan.exp.robot, r.trace.q, r.trace.t, r.trace.mocap_pos)
+            r.metrics.update(obstacle_contacts=contacts.contacts, obstacle_steps_in_contact=contacts.steps_in_contact,
+                             obstacle_min_clearance_m=contacts.min_clearance_m)
+    settings = {"seed": job.seed, "goal_motion": describe_goal_motion(job),
+                "goal": None if job.goal is None else list(job.goal)}
+    files = plan.files
+    report = files.write(plan.exp, done["main"], done["side"], done["grid"], plan.fields, plan.models, t_sim,
+                         plan.progress, settings=settings)
+    return JobReport(done["main"], done["side"], done["grid"], plan.models, files.out, files.json_path,
+                     files.n_videos, report)
+
+
+def execute(plan: JobPlan, run: PlannedRun, on_run: Callable[[RunResult], None] | None = None) -> RunResult:
+    """One planned run, scored; a run that ended blocked or short of its goal is said on stderr."""
+    exp, what = plan.exp, f"{run.learner} / {run.scenario}{run.note}"
+    plan.say(f"running {what}")
+    result = exp.run(plan.fields[run.learner], run.scenario, run.perturbations, seed=run.seed, progress=plan.progress)
+    m = result.metrics
+    if m.get("blocked"):
+        print(f"blocked: {what} stopped {m['final_goal_error_m'] * 1e3:.0f} mm from its goal, "
+              f"held {m['final_clearance_m'] * 1e3:.0f} mm clear of what is in its way", file=sys.stderr)
+    elif m.get("stopped_short"):
+        print(f"short: {what} ended {m['final_goal_error_m'] * 1e3:.0f} mm from its goal with nothing holding "
+              f"it back: the field did not bring it there in {exp.duration_s:g} s", file=sys.stderr)
+    if on_run is not None:
+        on_run(result)
+    return result

@@ -32,20 +32,19 @@ from collections.abc import Callable, Sequence
 
 import mujoco
 import numpy as np
-import pinocchio as pin
 from dm_control import mujoco as dm_mujoco
 from dm_control.rl import control
 from dm_env import specs
 
 from lfd.field import Field
 from lfd.runner import Runner
-from robots import RobotModel, solve_pose_ik
+from robots import RobotModel
 from sim.control.controller import FieldController, Gains
 from sim.control.step import ControlStep, contiguous
 from sim.errors import PlacementError, SimError
 from sim.scene.collision import Clearance
 from sim.scene.perturbations import Perturbation, Schedule, compile_schedule
-from sim.scene.placement import IK_TOLERANCE_M, IK_TOLERANCE_RAD, POSE_POSTURE_GAIN
+from sim.scene.placement import IK_TOLERANCE_M
 from sim.scene.setup import RunSetup
 
 OBSERVATION_KEYS: tuple[str, ...] = ("joint_positions", "joint_velocities", "ee_position", "task_position",
@@ -137,10 +136,8 @@ class FieldTrackingTask(control.Task):
         self.perturbations = tuple(perturbations)
         self._nmocap = int(model.nmocap)
         self._start_nominal = setup.start + self.schedule.start_offset_task
-        turn = self.schedule.start_turn_world
-        if placement.pose and np.any(turn != 0):   # the start's orientation turned by exp(theta u), world
-            rot = pin.exp3(turn) @ placement.rotation_to_world(self._start_nominal)
-            self._start_nominal = placement.to_task(placement.to_world(self._start_nominal), rot)
+        # a pose task's start orientation turned by exp(theta u), world
+        self._start_nominal = placement.turned(self._start_nominal, self.schedule.start_turn_world)
         self.start_task = self._start_nominal.copy()
         goal = setup.goal if goal is None else np.asarray(goal, dtype=np.float64)
         self.goal_task = goal + self.schedule.goal_offset_task
@@ -154,8 +151,8 @@ class FieldTrackingTask(control.Task):
         self._next_goal: np.ndarray | None = None
         self._shift = self.schedule.goal_offset_task.copy()
         self.rotation_ref = setup.rotation_ref
-        q0, err, rot_err = self._start_joints(self.start_task)
-        if not (err <= IK_TOLERANCE_M and (rot_err <= IK_TOLERANCE_RAD or not placement.pose)):
+        q0, err, rot_err, reached = placement.solve_ik(robot, self.start_task, self.rotation_ref)
+        if not reached:
             p0 = placement.to_world(self.start_task)
             miss = f"{err * 1e3:.1f} mm" if not err <= IK_TOLERANCE_M else f"{np.degrees(rot_err):.1f} deg"
             raise PlacementError(f"start point {np.round(p0, 3).tolist()} m is out of reach of "
@@ -200,14 +197,6 @@ class FieldTrackingTask(control.Task):
         self._obs_slices = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:]))
         self._observe: Callable[..., float] | None = None
 
-    def _start_joints(self, x: np.ndarray) -> tuple[np.ndarray, float, float]:
-        """Joints, shape (n,), with the tool on task point x, shape (d,) (a pose task: in its pose),
-        and the IK misses (m, rad)."""
-        if self.placement.pose:
-            return solve_pose_ik(self.robot, self.placement.to_world(x), self.placement.rotation_to_world(x),
-                                 q0=self.robot.q_home, posture=POSE_POSTURE_GAIN)
-        return solve_pose_ik(self.robot, self.placement.to_world(x), self.rotation_ref, q0=self.robot.q_home)
-
     def _draw_start(self) -> None:
         """A start uniform in the ball of ``start_radius`` around the nominal start (module docstring)."""
         d = self.placement.dim
@@ -215,8 +204,8 @@ class FieldTrackingTask(control.Task):
             u = self._rng.normal(size=d)
             r = self.start_radius * self._rng.uniform() ** (1.0 / d)
             x = self._start_nominal + r * u / max(float(np.linalg.norm(u)), 1e-300)
-            q, err, rot_err = self._start_joints(x)
-            if err <= IK_TOLERANCE_M and (rot_err <= IK_TOLERANCE_RAD or not self.placement.pose):
+            q, _, _, reached = self.placement.solve_ik(self.robot, x, self.rotation_ref)
+            if reached:
                 self.start_task, self.q_start = x, q
                 return
         raise PlacementError(f"no reachable start found in {START_DRAWS} draws within {self.start_radius:g} "

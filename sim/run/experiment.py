@@ -194,9 +194,7 @@ class Experiment:
 
     def task_points(self, trace: RunTrace) -> np.ndarray:
         """The run's measured tool poses as task points, shape (K+1, d) (chart points for poses)."""
-        if self.placement.pose:
-            return self.placement.to_task(trace.ee, trace.ee_rot)
-        return self.placement.to_task(trace.ee)
+        return self.placement.to_task(trace.ee, trace.ee_rot)
 
     def reference_task(self, field: Field, trace: RunTrace) -> np.ndarray:
         """x_ref(t_k), shape (K+1, d): the task-space rollout of the (goal-shifted) field from the
@@ -236,7 +234,7 @@ class Experiment:
         ref = self.placement.to_world(ref_task)
         metrics: dict[str, Any] = run_metrics(ro.t, ro.ee, ref, ro.goal_world, self.setup.demo_t, self.setup.demo_world,
                                               unperturbed, ro.push_window_s)
-        if self.placement.pose and ro.ee_rot is not None and self.setup.demo_rotations is not None:
+        if ro.ee_rot is not None and self.setup.demo_rotations is not None:     # a pose task
             metrics.update(orientation_metrics(ro.t, ro.ee_rot, self.placement.rotation_to_world(ref_task),
                                                self.placement.rotation_to_world(ro.goal_task), self.setup.demo_t,
                                                self.setup.demo_rotations))

@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
 from lfd.pose import PoseChart
 from robots import Kinematics, RobotModel, solve_pose_ik
@@ -115,6 +116,31 @@ class Placement:
         if self.chart is None:
             raise PlacementError("only a pose task has orientations")
         return np.einsum("ij,...jk->...ik", self.rotation, self.chart.rotations(x))
+
+    def tool_rotation(self, x: np.ndarray, held: np.ndarray | None = None) -> np.ndarray | None:
+        """The world tool rotation that task points x, shape (..., d), ask for: R R_task(x), shape
+        (..., 3, 3), for a pose task; ``held`` (the rotation a position task holds, or None) otherwise."""
+        return self.rotation_to_world(x) if self.chart is not None else held
+
+    def turned(self, x: np.ndarray, turn: np.ndarray) -> np.ndarray:
+        """Task point x, shape (d,), with its tool orientation turned by exp(turn), turn a world rotation
+        vector (3,) [rad]: a pose task's new chart point; a position task's x as it is (its orientation
+        is not part of the task)."""
+        if self.chart is None or not np.any(turn != 0):
+            return x
+        return self.to_task(self.to_world(x), pin.exp3(np.asarray(turn, dtype=np.float64)) @ self.rotation_to_world(x))
+
+    def solve_ik(self, robot: RobotModel, x: np.ndarray, held: np.ndarray | None = None,
+                 q0: np.ndarray | None = None) -> tuple[np.ndarray, float, float, bool]:
+        """Joints with the tool on task point x, shape (d,) (``solve_pose_ik``): a pose task's in its
+        pose, its redundant joints pulled toward q_home; a position task's holding ``held``. Returns
+        (q (n,), position miss [m], rotation miss [rad], reached: within ``IK_TOLERANCE_M`` and, for a
+        pose task, ``IK_TOLERANCE_RAD``)."""
+        pose = self.chart is not None
+        q, err, rot_err = solve_pose_ik(robot, self.to_world(x), self.tool_rotation(x, held),
+                                        q0=robot.q_home if q0 is None else q0,
+                                        posture=POSE_POSTURE_GAIN if pose else 0.0)
+        return q, err, rot_err, bool(err <= IK_TOLERANCE_M and (rot_err <= IK_TOLERANCE_RAD or not pose))
 
     def velocity_to_world(self, v: np.ndarray) -> np.ndarray:
         """s A v; v : array, shape (..., d) -> shape (..., 3) (a pose's linear part)."""

@@ -195,7 +195,7 @@ class RunSetup:
     @property
     def demo_rotations(self) -> np.ndarray | None:
         """A pose task's demo orientations in world, shape (T, 3, 3); None for positions."""
-        return self.placement.rotation_to_world(self.task_demos.x[self.demo_index]) if self.pose else None
+        return self.placement.tool_rotation(self.task_demos.x[self.demo_index])
 
 
 def _unit_quaternion(q: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ from lfd.field import Field, goal_at, space_mismatch
 from lfd.obstacles import Obstacle
 from lfd.runner import Runner
 from robots import RobotModel
+from robots.limits import limits_of
 from sim.control.controller import Gains
 from sim.control.env import FieldEnvironment, make_environment
 from sim.control.loop import FPS, RunTrace, execute
@@ -144,6 +145,8 @@ class Experiment:
         self.robot, self.demos, self.task_demos, self.placement = setup.robot, setup.demos, setup.task_demos, \
             setup.placement
         self.start, self.duration_s, self.obstacles = setup.start, setup.duration_s, setup.obstacles
+        #: the arm's motion limits (``robots.limits``): every run reports its peaks against them
+        self.limits = limits_of(setup.robot)
         if isinstance(clearance, str):
             if clearance != "auto":
                 raise SimError(f"clearance must be a Clearance, None or 'auto', not '{clearance}'")
@@ -239,7 +242,8 @@ class Experiment:
                                                self.placement.rotation_to_world(ro.goal_task), self.setup.demo_t,
                                                self.setup.demo_rotations))
         metrics.update(joint_limit_violations=ro.joint_limit_violations, ik_limit_hits=ro.ik_limit_hits,
-                       realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us)
+                       realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us,
+                       motion_limits=self.limits.check(ro.t, ro.q, ro.qdot, ro.ee))
         if ro.phase is not None:
             free_phase = None if cached is None else cached[2]
             metrics.update(self.phase_metrics(field, runner, ro, window, free_phase))

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from robots.model import RobotModel
 
@@ -90,7 +91,7 @@ class Limits:
         return len(self.q_min)
 
     def check(self, t: np.ndarray, q: np.ndarray, dq: np.ndarray | None = None,
-              tool: np.ndarray | None = None) -> dict[str, Any]:
+              tool: np.ndarray | None = None, tool_rotation: np.ndarray | None = None) -> dict[str, Any]:
         """Peaks and violations of a stream sampled at the fixed step of ``t``.
 
         Parameters
@@ -103,14 +104,17 @@ class Limits:
             Joint velocities, rad/s (default: the differences of q).
         tool : ndarray, shape (K, 3), optional
             Tool positions, m: its velocity, acceleration and jerk by differences.
+        tool_rotation : ndarray, shape (K, 3, 3), optional
+            Tool orientations, world: the angular velocity of each step, log(R_{k+1} R_k^T) / dt, and
+            its differences.
 
         Returns
         -------
         dict
             ``joint``: for each of ``JOINT_ORDERS`` the peak fraction of its limit (the worst joint; a
             position's fraction of the half range from the range's centre, so 1 is at a limit), the
-            joint it peaks on and the samples over the limit; ``tool`` the same for ``TOOL_ORDERS``
-            (translation); ``violations``: all samples over a limit; ``assumed``: ``assumed``.
+            joint it peaks on and the samples over the limit; ``tool`` and ``tool_rotation`` the same
+            for ``TOOL_ORDERS``; ``violations``: all samples over a limit; ``assumed``: ``assumed``.
         """
         t = np.asarray(t, dtype=np.float64)
         q = np.asarray(q, dtype=np.float64)
@@ -128,15 +132,20 @@ class Limits:
                                          ("acceleration", a, self.ddq_max), ("jerk", j, self.dddq_max))}
         out: dict[str, Any] = {"joint": joint, "rate_hz": 1.0 / dt, "assumed": list(self.assumed)}
         if tool is not None:
-            p = np.asarray(tool, dtype=np.float64)
-            tv = np.linalg.norm(np.diff(p, axis=0), axis=1) / dt
-            dv = np.diff(p, axis=0) / dt
-            ta = np.linalg.norm(np.diff(dv, axis=0), axis=1) / dt
-            tj = np.linalg.norm(np.diff(dv, n=2, axis=0), axis=1) / dt ** 2
-            out["tool"] = {order: _peak((x / limit)[:, None])
-                           for order, x, limit in zip(TOOL_ORDERS, (tv, ta, tj), self.tool_translation)}
-        out["violations"] = sum(g["over"] for part in ("joint", "tool") for g in out.get(part, {}).values())
+            out["tool"] = _tool(np.diff(np.asarray(tool, dtype=np.float64), axis=0) / dt, dt, self.tool_translation)
+        if tool_rotation is not None:
+            rot = Rotation.from_matrix(np.asarray(tool_rotation, dtype=np.float64))
+            out["tool_rotation"] = _tool((rot[1:] * rot[:-1].inv()).as_rotvec() / dt, dt, self.tool_rotation)
+        out["violations"] = sum(g["over"] for part in ("joint", "tool", "tool_rotation")
+                                for g in out.get(part, {}).values())
         return out
+
+
+def _tool(velocity: np.ndarray, dt: float, limits: tuple[float, float, float]) -> dict[str, dict[str, Any]]:
+    """``_peak`` of the norms of a tool velocity (K-1, 3) and of its first and second differences / dt."""
+    norms = (np.linalg.norm(velocity, axis=1), np.linalg.norm(np.diff(velocity, axis=0), axis=1) / dt,
+             np.linalg.norm(np.diff(velocity, n=2, axis=0), axis=1) / dt ** 2)
+    return {order: _peak((x / limit)[:, None]) for order, x, limit in zip(TOOL_ORDERS, norms, limits)}
 
 
 def _peak(fraction: np.ndarray) -> dict[str, Any]:

@@ -96,3 +96,21 @@ def test_every_run_reports_its_motion_against_the_limits_and_only_its_start_brea
     after = PANDA.check(tr.t[later], tr.q[later], tr.qdot[later], tr.ee[later])
     assert after["violations"] == 0, after
     assert report["violations"] >= after["violations"]
+
+
+def test_the_tool_rotation_is_checked_from_its_orientations() -> None:
+    """A tool turning about z at 1 rad/s, then at 2 rad/s from one sample to the next (1 kHz): angular
+    velocity 2 / 2.5 of the limit, the step 1000 rad/s^2 against 25; nothing over before the step."""
+    t = np.arange(0.0, 0.2, 1e-3)
+    rate = np.where(t < 0.1, 1.0, 2.0)
+    angle = np.concatenate([[0.0], np.cumsum(rate[:-1]) * 1e-3])
+    c, s = np.cos(angle), np.sin(angle)
+    rot = np.zeros((len(t), 3, 3))
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1], rot[:, 2, 2] = c, -s, s, c, 1.0
+    q = np.tile((PANDA.q_max + PANDA.q_min) / 2, (len(t), 1))
+    report = PANDA.check(t, q, tool_rotation=rot)["tool_rotation"]
+    assert report["velocity"]["peak"] == pytest.approx(2.0 / 2.5, rel=1e-9)
+    assert report["acceleration"]["peak"] == pytest.approx(1000.0 / 25.0, rel=1e-6)
+    assert report["acceleration"]["over"] == 1 and report["jerk"]["over"] == 2
+    early = PANDA.check(t[:100], q[:100], tool_rotation=rot[:100])
+    assert early["violations"] == 0

@@ -243,7 +243,7 @@ class Experiment:
                                                self.setup.demo_rotations))
         metrics.update(joint_limit_violations=ro.joint_limit_violations, ik_limit_hits=ro.ik_limit_hits,
                        realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us,
-                       motion_limits=self.limits.check(ro.t, ro.q, ro.qdot, ro.ee))
+                       motion_limits=self.limits.check(ro.t, ro.q, ro.qdot, ro.ee, ro.ee_rot))
         if ro.phase is not None:
             free_phase = None if cached is None else cached[2]
             metrics.update(self.phase_metrics(field, runner, ro, window, free_phase))

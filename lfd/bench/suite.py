@@ -78,8 +78,8 @@ class Cell:
 
 
 #: modules that only present results (report text, pages, plots): left out of the scoring code's fingerprint
-PRESENTATION: tuple[str, ...] = ("lfd.bench.report", "lfd.bench.report_page", "lfd.bench.summary", "lfd.pages",
-                                 "lfd.plotting")
+PRESENTATION: tuple[str, ...] = ("lfd.bench.report", "lfd.bench.report_page", "lfd.bench.robottasks_figures",
+                                 "lfd.bench.summary", "lfd.pages", "lfd.plotting")
 
 #: demos whose ends lie within this fraction of the states' extent of their mean end share one goal
 SAME_END = 1e-4

@@ -141,6 +141,14 @@ class Limits:
         return out
 
 
+def worst(report: dict[str, Any]) -> tuple[str, float]:
+    """The quantity of a ``Limits.check`` report that came nearest its limit or went furthest over it
+    ("joint acceleration", "tool_rotation jerk", ...), and its peak fraction."""
+    peaks = [(f"{part} {order}", float(g["peak"])) for part in ("joint", "tool", "tool_rotation")
+             for order, g in report.get(part, {}).items()]
+    return max(peaks, key=lambda p: p[1])
+
+
 def _tool(velocity: np.ndarray, dt: float, limits: tuple[float, float, float]) -> dict[str, dict[str, Any]]:
     """``_peak`` of the norms of a tool velocity (K-1, 3) and of its first and second differences / dt."""
     norms = (np.linalg.norm(velocity, axis=1), np.linalg.norm(np.diff(velocity, axis=0), axis=1) / dt,

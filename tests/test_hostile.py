@@ -347,6 +347,9 @@ def test_demo_arm_checks_outputs_and_seed_first(demo_arm, tmp_path: Path,  # typ
         ([*run, "--robot", "planar", "--placement", "recorded"], "--placement recorded needs 3-D demos"),
         ([*run, "--robot", "planar", "--scale", "-1"], "--scale must be a positive number"),
         ([*run, "--learner", "node,nope"], "unknown learner 'nope'; known: node, contraction, tracking, stable_node"),
+        ([*run, "--speed", "0"], "the speed must be a factor between 0.05 and 20, got 0.0"),
+        ([*run, "--speed", "nan"], "the speed must be a factor between 0.05 and 20, got nan"),
+        ([*run, "--speed", "1e6"], "the speed must be a factor between 0.05 and 20, got 1000000.0"),
     ]
     for argv, message in cases:
         assert demo_arm.main(argv) == 2

@@ -199,6 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--goal-shift", metavar="T:DX,DY[,DZ]", help="move the goal by DX (task units) at T s")
     g.add_argument("--goal-path", metavar="FILE", help="the goal follows this trajectory: CSV t,x,y[,z] or NPZ t, x")
+    p.add_argument("--speed", type=float, default=1.0, metavar="S",
+                   help="run every learned motion S times faster (below 1: slower), 0.05 to 20 (default 1)")
     p.add_argument("--control-hz", type=float, default=500.0, help="control rate in Hz (default 500)")
     p.add_argument("--iters", type=int, help="training iterations (default: the learner's)")
     p.add_argument("--quiet", action="store_true", help="print only the results table and errors")
@@ -223,8 +225,8 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
         origin=args.origin, scale=args.scale, shift=args.shift,
         push=PushSpec(args.push_force, args.push_start, args.push_duration, args.push_direction),
         obstacles=tuple(args.obstacle), goal=args.goal, goal_shift=args.goal_shift, goal_path=args.goal_path,
-        arm_clearance=not args.no_arm_clearance, control_hz=args.control_hz, iters=args.iters, quiet=args.quiet,
-        command=tuple(command))
+        arm_clearance=not args.no_arm_clearance, speed=args.speed, control_hz=args.control_hz, iters=args.iters,
+        quiet=args.quiet, command=tuple(command))
 
 
 def _fmt(value: Any, scale: float = 1.0, digits: int = 2) -> str:

@@ -11,6 +11,7 @@ import sys
 from dataclasses import dataclass, field
 
 from lfd.errors import ConfigError
+from lfd.speed import check_speed
 from sim.media.camera import CameraSpec
 from sim.run.experiment import SCENARIOS, scenario
 from sim.scene.perturbations import Perturbation, Push
@@ -58,7 +59,8 @@ class ArmJob:
     ``goal`` (task units; for poses the position, or the pose x, y, z, qw, qx, qy, qz, in the demos'
     frame) runs every field toward it instead of the demos' mean end (``Field.toward``).
     ``clean`` is the clean-up of a recorded ``demos`` (``lfd.load_demos``: True all steps, or the steps'
-    names). ``obstacles`` are ``lfd.obstacles.parse_obstacle`` texts, in task units; with
+    names). ``speed`` S runs every learned motion S times faster (``lfd.speed.at_speed``), the run
+    1/S as long before its settling time. ``obstacles`` are ``lfd.obstacles.parse_obstacle`` texts, in task units; with
     ``arm_clearance`` (the default) the fields keep the tool point the hand's size
     (``sim.scene.collision.hand_margin_m``) more than each obstacle's margin away, and collision dampers in
     the IK keep the rest of the arm clear of the obstacles, the table and itself (``sim.scene.collision``).
@@ -98,6 +100,7 @@ class ArmJob:
     goal: tuple[float, ...] | None = None
     goal_shift: str | None = None
     goal_path: str | None = None
+    speed: float = 1.0
     control_hz: float = 500.0
     iters: int | None = None
     quiet: bool = False
@@ -130,6 +133,7 @@ class ArmJob:
             raise ConfigError("--shift moves recorded poses; it takes no --origin, --scale or --size-m")
         if self.goal is not None and (len(self.goal) not in (2, 3, 7) or not all(math.isfinite(v) for v in self.goal)):
             raise ConfigError(f"--goal must be 2 or 3 finite task coordinates or a pose of 7, got {list(self.goal)}")
+        check_speed(self.speed)
         if self.iters is not None and self.iters < 1:
             raise ConfigError(f"--iters must be a positive integer, got {self.iters}")
         self.push.check()

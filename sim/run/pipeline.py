@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from robots.limits import worst
 from sim.run.experiment import RunResult
 from sim.run.job import ArmJob, PushSpec
 from sim.run.obstacle_runs import OBSTACLE_LEAD_S, OBSTACLE_TIME_FACTOR, grown
@@ -75,6 +76,7 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
             contacts = obstacle_contacts(plan.exp.robot, r.trace.q, r.trace.t, r.trace.mocap_pos)
             r.metrics.update(obstacle_contacts=contacts.contacts, obstacle_steps_in_contact=contacts.steps_in_contact,
                              obstacle_min_clearance_m=contacts.min_clearance_m)
+    _say_limits(plan, [r for group in done.values() for r in group])
     settings = {"seed": job.seed, "goal_motion": describe_goal_motion(job),
                 "goal": None if job.goal is None else list(job.goal)}
     files = plan.files
@@ -99,3 +101,16 @@ def execute(plan: JobPlan, run: PlannedRun, on_run: Callable[[RunResult], None] 
     if on_run is not None:
         on_run(result)
     return result
+
+
+def _say_limits(plan: JobPlan, results: list[RunResult]) -> None:
+    """One line on stderr (unless quiet) when runs went over the arm's published limits
+    (``robots.limits``; metrics.json ``motion_limits`` holds each run's peaks)."""
+    runs = list({id(r): r for r in results}.values())
+    over = [r for r in runs if r.metrics["motion_limits"]["violations"]]
+    if over and not plan.job.quiet:
+        where = max(over, key=lambda r: worst(r.metrics["motion_limits"])[1])
+        name, peak = worst(where.metrics["motion_limits"])
+        print(f"limits: {len(over)} of {len(runs)} runs went over {plan.exp.limits.name}'s published limits, "
+              f"most {name} at {peak:.2f}x its limit ({where.learner} / {where.scenario}); nothing limits the "
+              "command stream yet (metrics.json motion_limits)", file=sys.stderr)

@@ -28,6 +28,7 @@ from lfd.errors import ConfigError
 from lfd.field import Field, space_mismatch
 from lfd.learners import get_learner
 from lfd.obstacles import MIN_GOAL_GAMMA, Obstacle, parse_obstacle
+from lfd.speed import at_speed
 from robots import RobotError, RobotModel, load_robot
 from sim.control.controller import Gains
 from sim.errors import PlacementError
@@ -144,6 +145,8 @@ def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle]) -> Exper
     setup = RunSetup.resolve(robot, demos, plane=job.plane, size_m=job.size_m, origin=job.origin, scale=job.scale,
                              shift=job.shift, recorded=job.placement == "recorded", obstacles=obstacles,
                              time_factor=among.time_factor if obstacles else 1.0, goal=job.goal)
+    if job.speed != 1.0:   # the motion takes 1/S of the demos' time, then the same settling time
+        setup = setup.retimed(job.speed)
     return Experiment(setup, control_hz=job.control_hz, ik=job.ik, fps=job.fps,
                       gains=among.gains() if obstacles else Gains(),
                       clearance="auto" if job.arm_clearance else None)
@@ -225,8 +228,8 @@ def _fields(job: ArmJob, planned: list[str], demos: DemoSet, progress: bool
 
 def _wrapped(name: str, f: Field, job: ArmJob, demos: DemoSet, exp: Experiment, motion: GoalMotion | None,
              avoided: list[Obstacle]) -> Field:
-    """``f`` toward the job's goal, checked against the task's space, re-centred on the moving goal and
-    avoiding the obstacles."""
+    """``f`` toward the job's goal, checked against the task's space, re-centred on the moving goal,
+    avoiding the obstacles, at the job's speed."""
     if job.goal is not None:   # the learned motion, toward the job's goal
         f = f.toward(np.asarray(job.goal, dtype=np.float64))
     mismatch = space_mismatch(f, exp.placement.chart)
@@ -236,7 +239,7 @@ def _wrapped(name: str, f: Field, job: ArmJob, demos: DemoSet, exp: Experiment, 
         raise ConfigError(f"the {name} model is {f.dim}-D but the demos {demos.name} are {demos.dim}-D")
     if motion is not None:
         f = moving(f, motion)
-    return lfd.avoid(f, avoided) if avoided else f
+    return at_speed(lfd.avoid(f, avoided) if avoided else f, job.speed)
 
 
 def _runs(job: ArmJob, main: list[str], pose: bool) -> list[PlannedRun]:

@@ -55,6 +55,9 @@ class RunSetup:
         The run's length: ``time_factor`` times the demo's duration plus the settling time, s.
     obstacles : tuple of Obstacle
         Task-space obstacles, in the scene (the field avoids them only if built to: ``lfd.avoid``).
+    speed : float
+        The runs' speed factor S (``lfd.speed``): the demo the runs are scored against takes 1/S of
+        its recorded time (``demo_t``).
     """
 
     robot: RobotModel
@@ -67,6 +70,7 @@ class RunSetup:
     goal: np.ndarray
     duration_s: float
     obstacles: tuple[Obstacle, ...] = ()
+    speed: float = 1.0
 
     @classmethod
     def resolve(cls, robot: RobotModel, demos: DemoSet, *, placement: Placement | None = None,
@@ -166,6 +170,15 @@ class RunSetup:
             changes["duration_s"] = float(duration_s)
         return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
 
+    def retimed(self, speed: float, settle_s: float = SETTLE_S) -> RunSetup:
+        """This setup for a motion run ``speed`` times faster (``lfd.speed``): the part of the run before
+        the settling time ``settle_s`` lasts 1/speed as long, and the demo is scored at its re-timed
+        times (``demo_t``)."""
+        if not (math.isfinite(speed) and speed > 0):
+            raise SimError(f"the speed must be a positive factor, got {speed}")
+        motion = (self.duration_s - settle_s) * self.speed / speed
+        return dataclasses.replace(self, speed=float(speed), duration_s=motion + settle_s)
+
     @property
     def dim(self) -> int:
         """The task dimension d (6 for a pose task)."""
@@ -183,9 +196,9 @@ class RunSetup:
 
     @property
     def demo_t(self) -> np.ndarray:
-        """The run's demo's times from 0, shape (T,), s."""
+        """The run's demo's times from 0 at the runs' speed, shape (T,), s."""
         t = self.task_demos.t[self.demo_index]
-        return t - t[0]
+        return (t - t[0]) / self.speed
 
     @property
     def demo_world(self) -> np.ndarray:

@@ -199,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--goal-shift", metavar="T:DX,DY[,DZ]", help="move the goal by DX (task units) at T s")
     g.add_argument("--goal-path", metavar="FILE", help="the goal follows this trajectory: CSV t,x,y[,z] or NPZ t, x")
+    p.add_argument("--via", action="append", default=[], metavar="X,Y[,Z][@S]",
+                   help="a point the tracking learner's motion passes through (repeatable), task units, "
+                        "near phase S in [0.05, 0.95] if given (default: the nearest point of its path)")
     p.add_argument("--speed", type=float, default=1.0, metavar="S",
                    help="run every learned motion S times faster (below 1: slower), 0.05 to 20 (default 1)")
     p.add_argument("--control-hz", type=float, default=500.0, help="control rate in Hz (default 500)")
@@ -225,7 +228,8 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
         origin=args.origin, scale=args.scale, shift=args.shift,
         push=PushSpec(args.push_force, args.push_start, args.push_duration, args.push_direction),
         obstacles=tuple(args.obstacle), goal=args.goal, goal_shift=args.goal_shift, goal_path=args.goal_path,
-        arm_clearance=not args.no_arm_clearance, speed=args.speed, control_hz=args.control_hz, iters=args.iters,
+        arm_clearance=not args.no_arm_clearance, speed=args.speed, via=tuple(args.via), control_hz=args.control_hz,
+        iters=args.iters,
         quiet=args.quiet, command=tuple(command))
 
 

@@ -60,7 +60,9 @@ class ArmJob:
     frame) runs every field toward it instead of the demos' mean end (``Field.toward``).
     ``clean`` is the clean-up of a recorded ``demos`` (``lfd.load_demos``: True all steps, or the steps'
     names). ``speed`` S runs every learned motion S times faster (``lfd.speed.at_speed``), the run
-    1/S as long before its settling time. ``obstacles`` are ``lfd.obstacles.parse_obstacle`` texts, in task units; with
+    1/S as long before its settling time. ``via`` (``lfd.via.parse_via`` texts, task units) makes the
+    tracking learner's motion pass through those points (``lfd.via.through``). ``obstacles`` are
+    ``lfd.obstacles.parse_obstacle`` texts, in task units; with
     ``arm_clearance`` (the default) the fields keep the tool point the hand's size
     (``sim.scene.collision.hand_margin_m``) more than each obstacle's margin away, and collision dampers in
     the IK keep the rest of the arm clear of the obstacles, the table and itself (``sim.scene.collision``).
@@ -101,6 +103,7 @@ class ArmJob:
     goal_shift: str | None = None
     goal_path: str | None = None
     speed: float = 1.0
+    via: tuple[str, ...] = ()
     control_hz: float = 500.0
     iters: int | None = None
     quiet: bool = False

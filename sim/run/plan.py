@@ -29,6 +29,7 @@ from lfd.field import Field, space_mismatch
 from lfd.learners import get_learner
 from lfd.obstacles import MIN_GOAL_GAMMA, Obstacle, parse_obstacle
 from lfd.speed import at_speed
+from lfd.via import parse_via, through
 from robots import RobotError, RobotModel, load_robot
 from sim.control.controller import Gains
 from sim.errors import PlacementError
@@ -96,13 +97,14 @@ def plan_job(job: ArmJob) -> JobPlan:
     files = JobFiles(job, planned)                     # every output path checked before any work
     demos = _demos(job)
     obstacles = [parse_obstacle(text, demos.dim) for text in job.obstacles]
+    vias = [parse_via(text, demos.dim) for text in job.via]
     motion = goal_motion_of(job, demos.dim)
     goal = _goal(job, demos, obstacles)
     exp = _experiment(job, demos, obstacles)
     avoided = _avoided(job, exp, obstacles, goal, motion)
-    _check_runs(job, exp)
+    _check_runs(job, exp, vias)
     fields, models, main = _fields(job, planned, demos, progress)
-    fields = {name: _wrapped(name, f, job, demos, exp, motion, avoided) for name, f in fields.items()}
+    fields = {name: _wrapped(name, f, job, demos, exp, motion, avoided, vias) for name, f in fields.items()}
     if main != planned:   # the model file named its own learner: the planned names follow it
         files = JobFiles(job, main)
     return JobPlan(job, demos, obstacles, exp, fields, models, files, _runs(job, main, exp.placement.pose), progress)
@@ -181,9 +183,18 @@ def _avoided(job: ArmJob, exp: Experiment, obstacles: list[Obstacle], goal: tupl
     return avoided
 
 
-def _check_runs(job: ArmJob, exp: Experiment) -> None:
-    """The runs' own checks: a pose task's offset start within reach, the push within the run, and a
-    GL back-end for the videos."""
+def _check_runs(job: ArmJob, exp: Experiment, vias: list[tuple[np.ndarray, float | None]]) -> None:
+    """The runs' own checks: via-points for the tracking learner on positions and within reach, a pose
+    task's offset start within reach, the push within the run, and a GL back-end for the videos."""
+    if vias:
+        learners = set(job.learners or DEFAULT_LEARNERS) | (set(SIDE_BY_SIDE_LEARNERS) if job.side_by_side else set())
+        if learners != {"tracking"} or exp.placement.pose or job.model:
+            raise ConfigError("--via conditions the tracking learner's reference: give --learner tracking, on "
+                              "position demos, and no --model or --side-by-side")
+        try:
+            exp.placement.check_reachable(exp.robot, np.stack([p for p, _ in vias]), rotation=exp.setup.rotation_ref)
+        except PlacementError as e:
+            raise ConfigError(f"--via: a via-point leaves the arm's reach ({e})") from None
     if exp.placement.pose:   # a pose task's offset start is turned too: its reach, before any training
         for name in {*job.scenarios, *([job.side_by_side] if job.side_by_side else [])} & {"offset"}:
             try:
@@ -227,11 +238,13 @@ def _fields(job: ArmJob, planned: list[str], demos: DemoSet, progress: bool
 
 
 def _wrapped(name: str, f: Field, job: ArmJob, demos: DemoSet, exp: Experiment, motion: GoalMotion | None,
-             avoided: list[Obstacle]) -> Field:
-    """``f`` toward the job's goal, checked against the task's space, re-centred on the moving goal,
-    avoiding the obstacles, at the job's speed."""
+             avoided: list[Obstacle], vias: list[tuple[np.ndarray, float | None]]) -> Field:
+    """``f`` toward the job's goal, through the via-points, checked against the task's space,
+    re-centred on the moving goal, avoiding the obstacles, at the job's speed."""
     if job.goal is not None:   # the learned motion, toward the job's goal
         f = f.toward(np.asarray(job.goal, dtype=np.float64))
+    if vias:
+        f = through(f, [p for p, _ in vias], [s for _, s in vias])
     mismatch = space_mismatch(f, exp.placement.chart)
     if mismatch is not None:
         raise ConfigError(f"the {name} model does not fit the demos {demos.name}: {mismatch}")

@@ -1,4 +1,4 @@
-"""A learned motion run S times faster or slower (``lfd.speed.at_speed``, ``--speed``): the same paths in
+"""A learned motion run S times faster or slower (``lfd.retime.at_speed``, ``--speed``): the same paths in
 1/S of the time, for every kind of field, and on the arm."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sim
 from lfd.errors import ConfigError
 from lfd.field import FieldKind
 from lfd.goal import shift_goal
-from lfd.speed import at_speed
+from lfd.retime import at_speed
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import sys
 from dataclasses import dataclass, field
 
 from lfd.errors import ConfigError
-from lfd.speed import check_speed
+from lfd.retime import check_speed
 from sim.media.camera import CameraSpec
 from sim.run.experiment import SCENARIOS, scenario
 from sim.scene.perturbations import Perturbation, Push
@@ -59,7 +59,7 @@ class ArmJob:
     ``goal`` (task units; for poses the position, or the pose x, y, z, qw, qx, qy, qz, in the demos'
     frame) runs every field toward it instead of the demos' mean end (``Field.toward``).
     ``clean`` is the clean-up of a recorded ``demos`` (``lfd.load_demos``: True all steps, or the steps'
-    names). ``speed`` S runs every learned motion S times faster (``lfd.speed.at_speed``), the run
+    names). ``speed`` S runs every learned motion S times faster (``lfd.retime.at_speed``), the run
     1/S as long before its settling time. ``via`` (``lfd.via.parse_via`` texts, task units) makes the
     tracking learner's motion pass through those points (``lfd.via.through``). ``obstacles`` are
     ``lfd.obstacles.parse_obstacle`` texts, in task units; with

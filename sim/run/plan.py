@@ -28,7 +28,7 @@ from lfd.errors import ConfigError
 from lfd.field import Field, space_mismatch
 from lfd.learners import get_learner
 from lfd.obstacles import MIN_GOAL_GAMMA, Obstacle, parse_obstacle
-from lfd.speed import at_speed
+from lfd.retime import at_speed
 from lfd.via import parse_via, through
 from robots import RobotError, RobotModel, load_robot
 from sim.control.controller import Gains

@@ -56,7 +56,7 @@ class RunSetup:
     obstacles : tuple of Obstacle
         Task-space obstacles, in the scene (the field avoids them only if built to: ``lfd.avoid``).
     speed : float
-        The runs' speed factor S (``lfd.speed``): the demo the runs are scored against takes 1/S of
+        The runs' speed factor S (``lfd.retime``): the demo the runs are scored against takes 1/S of
         its recorded time (``demo_t``).
     """
 
@@ -171,7 +171,7 @@ class RunSetup:
         return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
 
     def retimed(self, speed: float, settle_s: float = SETTLE_S) -> RunSetup:
-        """This setup for a motion run ``speed`` times faster (``lfd.speed``): the part of the run before
+        """This setup for a motion run ``speed`` times faster (``lfd.retime``): the part of the run before
         the settling time ``settle_s`` lasts 1/speed as long, and the demo is scored at its re-timed
         times (``demo_t``)."""
         if not (math.isfinite(speed) and speed > 0):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from robots.model import RobotModel
+from robots.model import ArmModel
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -28,7 +28,7 @@ class Kinematics:
         loop reads ``pose or read_pose()``: an attribute, and a call only when it is missing.
     """
 
-    def __init__(self, robot: RobotModel) -> None:
+    def __init__(self, robot: ArmModel) -> None:
         self.model = robot.pin_model
         self.data = self.model.createData()
         self.frame_id = self.model.getFrameId(robot.ee_frame)

@@ -16,14 +16,18 @@ checked is the arm's measured motion, the closest record of what a command strea
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from robots.model import RobotModel
+from robots.errors import RobotError
+from robots.model import ArmModel
 
 #: where ``PANDA``'s numbers come from
 FRANKA_SOURCE = ("Franka Control Interface documentation, 'Robot and interface specifications', limits for "
@@ -177,12 +181,72 @@ PANDA = Limits(
     tool_translation=(1.7, 13.0, 6500.0), tool_rotation=(2.5, 25.0, 12500.0))
 
 
-def limits_of(robot: RobotModel) -> Limits:
-    """The limits of ``robot``: ``PANDA`` for the Panda; for any other robot its model's joint
-    positions and velocities (``robot.q_min``, ``q_max``, ``v_max``) and efforts (the Pinocchio model's,
-    where stated), every other limit assumed unlimited and named in ``assumed``."""
+#: the Franka Research 3 (FR3), joints 1-7: the same documentation's limits for FR3. Its joint
+#: velocity limits here are the largest the FR3 allows; the FCI lowers them near the position limits
+#: (libfranka's ``computeUpperLimitsJointVelocity``), which a stream must respect there as well.
+FR3 = Limits(
+    name="fr3", source=FRANKA_SOURCE.replace("Panda (FER)", "Franka Research 3 (FR3)"),
+    q_min=np.array([-2.7437, -1.7837, -2.9007, -3.0421, -2.8065, 0.5445, -3.0159]),
+    q_max=np.array([2.7437, 1.7837, 2.9007, -0.1518, 2.8065, 4.5169, 3.0159]),
+    dq_max=np.array([2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26]),
+    ddq_max=np.full(7, 10.0),
+    dddq_max=np.full(7, 5000.0),
+    tau_max=np.array([87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0]),
+    dtau_max=np.full(7, 1000.0),
+    tool_translation=(3.0, 9.0, 4500.0), tool_rotation=(2.5, 17.0, 8500.0))
+
+
+def load_limits(path: str | Path) -> Limits:
+    """An arm's limits from a JSON file: an object with ``name``, ``source`` and any of the per-joint
+    arrays of ``Limits`` (``q_min``, ``q_max``, ``dq_max``, ``ddq_max``, ``dddq_max``, ``tau_max``,
+    ``dtau_max``; ``q_min`` and ``q_max`` are required and set n) and the tool's 3-vectors
+    (``tool_translation``, ``tool_rotation``). A limit left out is unlimited (inf) and named in
+    ``assumed``.
+
+    Raises
+    ------
+    RobotError
+        A missing or unreadable file, a value that is not a number, NaN, a wrong length, or a limit
+        that is not positive (one line).
+    """
+    p = Path(path)
+    try:
+        raw = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise RobotError(f"limits file not found: {p}") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RobotError(f"cannot read the limits file {p}: {exc}") from None
+    if not isinstance(raw, dict) or "q_min" not in raw or "q_max" not in raw:
+        raise RobotError(f"the limits file {p} must hold an object with at least q_min and q_max")
+    known = {f.name for f in dataclasses.fields(Limits)} - {"assumed"}
+    unknown = sorted(set(raw) - known)
+    if unknown:
+        raise RobotError(f"the limits file {p} has unknown key(s) {', '.join(unknown)}; "
+                         f"known: {', '.join(sorted(known))}")
+    try:
+        n = len(raw["q_min"])
+        inf = [math.inf] * n
+        assumed = [key for key in ("dq_max", "ddq_max", "dddq_max", "tau_max", "dtau_max", "tool_translation",
+                                   "tool_rotation") if key not in raw]
+        fields = {key: raw.get(key, inf) for key in ("dq_max", "ddq_max", "dddq_max", "tau_max", "dtau_max")}
+        return Limits(name=str(raw.get("name", p.stem)), source=str(raw.get("source", f"the file {p.name}")),
+                      q_min=np.asarray(raw["q_min"], dtype=np.float64),
+                      q_max=np.asarray(raw["q_max"], dtype=np.float64),
+                      tool_translation=tuple(raw.get("tool_translation", [math.inf] * 3)),
+                      tool_rotation=tuple(raw.get("tool_rotation", [math.inf] * 3)), assumed=tuple(assumed),
+                      **{k: np.asarray(v, dtype=np.float64) for k, v in fields.items()})
+    except (TypeError, ValueError) as exc:
+        raise RobotError(f"the limits file {p}: {str(exc).splitlines()[0]}") from None
+
+
+def limits_of(robot: ArmModel) -> Limits:
+    """The limits of ``robot``: ``PANDA`` for the Panda, ``FR3`` for an arm named ``fr3``; for any
+    other robot its model's joint positions and velocities (``robot.q_min``, ``q_max``, ``v_max``)
+    and efforts (the Pinocchio model's, where stated), every other limit assumed unlimited and named in ``assumed``."""
     if robot.name == "panda" and robot.n == PANDA.n:
         return PANDA
+    if robot.name == "fr3" and robot.n == FR3.n:
+        return FR3
     n = robot.n
     effort = np.asarray(robot.pin_model.effortLimit, dtype=np.float64)[:n] if robot.pin_model.nv >= n \
         else np.full(n, np.inf)

@@ -11,11 +11,11 @@ import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import pinocchio as pin
 
 from robots import scene, sources, visual
+from robots._mujoco import mujoco
 from robots.errors import RobotError
 from robots.model import RobotModel
 

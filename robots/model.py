@@ -3,10 +3,53 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
 
-import mujoco
 import numpy as np
 import pinocchio
+
+if TYPE_CHECKING:
+    import mujoco
+
+
+class ArmModel(Protocol):
+    """What the kinematics, the differential IK, the limits and the controller read of an arm: its
+    Pinocchio model and tool frame, joint names, home posture and joint limits. ``RobotModel`` (both
+    engines) and ``robots.pinocchio_arm.PinocchioArm`` (Pinocchio alone, no MuJoCo) are ``ArmModel``s.
+
+    Attributes
+    ----------
+    name : str
+    pin_model : pinocchio.Model
+        The arm joints only.
+    ee_frame : str
+        The tool's Pinocchio frame.
+    arm_joints : tuple of str, length n
+    q_home, q_min, q_max, v_max : ndarray, shape (n,)
+    planar : bool
+    n : int
+    """
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def pin_model(self) -> pinocchio.Model: ...
+    @property
+    def ee_frame(self) -> str: ...
+    @property
+    def arm_joints(self) -> tuple[str, ...]: ...
+    @property
+    def q_home(self) -> np.ndarray: ...
+    @property
+    def q_min(self) -> np.ndarray: ...
+    @property
+    def q_max(self) -> np.ndarray: ...
+    @property
+    def v_max(self) -> np.ndarray: ...
+    @property
+    def planar(self) -> bool: ...
+    @property
+    def n(self) -> int: ...
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-import mujoco
 import numpy as np
+
+from robots._mujoco import mujoco
 
 SERVO_OMEGA = 60.0
 SERVO_ZETA = 1.0

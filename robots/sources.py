@@ -11,10 +11,10 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import pinocchio as pin
 
+from robots._mujoco import mujoco
 from robots.errors import RobotError
 
 _MESH_FORMATS = (".stl", ".obj", ".msh")

@@ -27,8 +27,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import cast
 
-import mujoco
 import numpy as np
+
+from robots._mujoco import mujoco
 
 VISUAL_GROUP = 2
 COLLISION_GROUP = 3

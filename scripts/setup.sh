@@ -11,9 +11,11 @@ fi
 stamp=.venv/.lfd-installed
 want=$(sha256sum pyproject.toml scripts/setup.sh | sha256sum | cut -d' ' -f1)
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+    bash scripts/setup_franka.sh   # its own stamp: returns at once when nothing changed
     exit 0
 fi
 echo "setup: installing CPU torch and the project into .venv (first run takes a few minutes)" >&2
 .venv/bin/python -m pip install --quiet --disable-pip-version-check "torch==2.13.0"
 .venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[dev]"
 echo "$want" > "$stamp"
+bash scripts/setup_franka.sh   # franka-sim in .venv-franka and pylibfranka in .venv (robots/franka.py)

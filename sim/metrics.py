@@ -25,6 +25,7 @@ import numpy as np
 
 from lfd import metrics as lfd_metrics
 from lfd.pose import geodesic_angle
+from robots.limits import Limits
 
 RECOVERY_TOLERANCE_M = 0.005
 
@@ -133,3 +134,34 @@ def clearance_metrics(t: np.ndarray, clearance: np.ndarray, active: np.ndarray, 
             "final_clearance_m": float(last.min()) if last.size else None,
             "guard_active_s": float(np.count_nonzero(active) * dt),
             "blocked": blocked, "stopped_short": bool(goal_error_m > BLOCKED_GOAL_M and not blocked)}
+
+
+def command_metrics(limits: Limits, t: np.ndarray, q: np.ndarray, command: np.ndarray,
+                    ik_command: np.ndarray) -> dict[str, Any]:
+    """Scores of a joint-velocity command stream (``robots.controller.ArmController``).
+
+    Parameters
+    ----------
+    limits : Limits
+        The arm's limits (``robots.limits``).
+    t : ndarray, shape (K+1,)
+        Step times, s.
+    q : ndarray, shape (K+1, n)
+        Measured joints, rad (the stream's positions).
+    command, ik_command : ndarray, shape (K+1, n)
+        The commands sent and the IK's joint velocities the limiter took as targets, rad/s (the last
+        row, which no step sent, is ignored).
+
+    Returns
+    -------
+    dict
+        ``command_limits``: ``Limits.check`` of the stream (velocity as sent, its acceleration and
+        jerk by differences); ``limiter_active_s``: time the limiter changed the IK's command;
+        ``limiter_window_s``: the first and last time it did ([] if never).
+    """
+    dt = float(t[1] - t[0])
+    acted = np.abs(command[:-1] - ik_command[:-1]).max(axis=1) > 1e-9
+    steps = np.flatnonzero(acted)
+    return {"command_limits": limits.check(t[:-1], q[:-1], command[:-1]),
+            "limiter_active_s": float(len(steps) * dt),
+            "limiter_window_s": [float(t[steps[0]]), float(t[steps[-1]])] if len(steps) else []}

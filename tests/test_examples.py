@@ -82,3 +82,10 @@ def test_06_runs_a_recorded_pour_in_full_pose(workdir: Path) -> None:
     for m in runs.values():
         assert m["final_goal_error_m"] < 0.002 and m["final_goal_error_deg"] < 1.0
         assert m["tracking_rmse_deg"] < 1.0 and m["joint_limit_violations"] == 0
+
+
+def test_07_runs_the_real_arm_controller_at_1_khz(workdir: Path) -> None:
+    out = run_example("07_real_arm_loop.py", workdir)
+    first, peaks = out.splitlines()[:2]
+    assert "cycles at 1 kHz" in first and float(first.split(" at ")[-1].split()[0]) < 1.0   # mm from the goal
+    assert peaks.endswith("over the limits: 0")

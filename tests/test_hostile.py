@@ -333,6 +333,7 @@ def demo_arm(monkeypatch: pytest.MonkeyPatch, tmp_path: Path):  # type: ignore[n
 def test_demo_arm_checks_outputs_and_seed_first(demo_arm, tmp_path: Path,  # type: ignore[no-untyped-def]
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "afile").write_text("")
+    (tmp_path / "nan.json").write_text('{"q_min": [-1, -1, -1, -3, -1, 0, -1], "q_max": [1, 1, 1, -0.1, 1, 3, NaN]}')
     save_file(spiral(n_demos=2, n_samples=20), tmp_path / "d.npz")
     run = ["--out", str(tmp_path / "run"), "--quiet"]
     cases = [
@@ -348,7 +349,9 @@ def test_demo_arm_checks_outputs_and_seed_first(demo_arm, tmp_path: Path,  # typ
         ([*run, "--robot", "planar", "--scale", "-1"], "--scale must be a positive number"),
         ([*run, "--learner", "node,nope"], "unknown learner 'nope'; known: node, contraction, tracking, stable_node"),
         ([*run, "--via", "0.1,0.2,0.3"], "--via '0.1,0.2,0.3': expected 2 finite task coordinates for 2-D demos"),
-        ([*run, "--via", "0.1,0.2"], "--via conditions the tracking learner's reference: give --learner tracking"),
+        ([*run, "--robot", "planar", "--limiter"], "'planar' has no finite joint acceleration and jerk limits"),
+        ([*run, "--limits", str(tmp_path / "nan.json")], "q_max must be 7 numbers, none NaN"),
+        ([*run, "--limits", str(tmp_path / "none.json")], "limits file not found"),
         ([*run, "--learner", "tracking", "--via", "40,40"], "--via: a via-point leaves the arm's reach"),
         ([*run, "--speed", "0"], "the speed must be a factor between 0.05 and 20, got 0.0"),
         ([*run, "--speed", "nan"], "the speed must be a factor between 0.05 and 20, got nan"),

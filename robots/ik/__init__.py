@@ -12,7 +12,7 @@ from robots.errors import RobotError
 from robots.ik.gains import JointGains
 from robots.ik.position import solve_pose_ik, solve_position_ik
 from robots.kinematics import Kinematics
-from robots.model import RobotModel
+from robots.model import ArmModel
 
 _REGISTRY: dict[str, tuple[str, str, str]] = {
     "dls": ("robots.ik.dls", "DlsBackend", "DlsGains"),
@@ -21,7 +21,7 @@ _REGISTRY: dict[str, tuple[str, str, str]] = {
 IK_BACKENDS: tuple[str, ...] = tuple(_REGISTRY)
 
 
-def _check_rows(rows: tuple[int, ...] | None, robot: RobotModel) -> tuple[int, ...]:
+def _check_rows(rows: tuple[int, ...] | None, robot: ArmModel) -> tuple[int, ...]:
     if rows is None:
         return (0, 1) if robot.planar else (0, 1, 2, 3, 4, 5)
     rows = tuple(int(r) for r in rows)
@@ -40,7 +40,7 @@ class DifferentialIK:
     that had to respect a joint limit.
     """
 
-    def __init__(self, robot: RobotModel, backend: str = "dls", rows: tuple[int, ...] | None = None,
+    def __init__(self, robot: ArmModel, backend: str = "dls", rows: tuple[int, ...] | None = None,
                  **gains: Any) -> None:
         if backend not in _REGISTRY:
             raise RobotError(f"unknown IK backend '{backend}'; known: {', '.join(IK_BACKENDS)}")

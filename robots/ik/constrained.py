@@ -35,7 +35,7 @@ import numpy as np
 from robots.errors import RobotError
 from robots.ik.gains import JointGains, check_gain, is_number
 from robots.kinematics import Kinematics
-from robots.model import RobotModel
+from robots.model import ArmModel
 
 __all__ = ["ConstrainedIK", "QpGains"]
 
@@ -68,7 +68,7 @@ class ConstrainedIK:
     ``solve`` returns qdot and whether the rows had to be relaxed; ``active`` after a solve: the
     rows that hold with equality (within 1e-9 m/s), shape (k,) of bool."""
 
-    def __init__(self, robot: RobotModel, rows: tuple[int, ...], kinematics: Kinematics,
+    def __init__(self, robot: ArmModel, rows: tuple[int, ...], kinematics: Kinematics,
                  gains: QpGains = QpGains()) -> None:
         self.kinematics = kinematics
         self.gains = gains

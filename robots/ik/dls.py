@@ -9,7 +9,7 @@ from scipy.linalg.lapack import dposv, dpotrf, dsyev
 
 from robots.ik.gains import JointGains
 from robots.kinematics import Kinematics
-from robots.model import RobotModel
+from robots.model import ArmModel
 
 _FAST_TOL = 1e-9  # margin of the fast limit test over rounding: a qdot this close to a limit takes the full test
 
@@ -44,7 +44,7 @@ class DlsBackend:
     inside it).
     """
 
-    def __init__(self, robot: RobotModel, rows: tuple[int, ...], kinematics: Kinematics, gains: DlsGains) -> None:
+    def __init__(self, robot: ArmModel, rows: tuple[int, ...], kinematics: Kinematics, gains: DlsGains) -> None:
         self.kinematics = kinematics
         self.rows = np.asarray(rows, dtype=int)
         self.gains = gains

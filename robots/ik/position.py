@@ -6,14 +6,14 @@ import numpy as np
 import pinocchio as pin
 
 from robots.kinematics import Kinematics
-from robots.model import RobotModel
+from robots.model import ArmModel
 
 _DAMPING2 = 1e-8       # lambda^2 of the Levenberg-Marquardt step
 _MAX_STEP = 0.3        # largest joint step per iteration [rad|m]
 _RESTARTS = 8          # extra seeded starts when the first one fails
 
 
-def _descend(kin: Kinematics, robot: RobotModel, position: np.ndarray, rotation: np.ndarray | None, rows: np.ndarray,
+def _descend(kin: Kinematics, robot: ArmModel, position: np.ndarray, rotation: np.ndarray | None, rows: np.ndarray,
              q: np.ndarray, tol: float, max_iters: int, posture: float = 0.0) -> tuple[np.ndarray, float, float]:
     """Damped Gauss-Newton from q: dq = J# e + posture (I - J# J) (q_home - q), J# = J^T (J J^T + lambda^2 I)^-1,
     q <- clip(q + dq, q_min, q_max); e = [p* - p; log(R* R^T)] restricted to ``rows``. Returns (q, position
@@ -43,7 +43,7 @@ def _descend(kin: Kinematics, robot: RobotModel, position: np.ndarray, rotation:
     return q, pos_err, rot_err
 
 
-def solve_position_ik(robot: RobotModel, position: np.ndarray, rotation: np.ndarray | None = None,
+def solve_position_ik(robot: ArmModel, position: np.ndarray, rotation: np.ndarray | None = None,
                       q0: np.ndarray | None = None, tol: float = 1e-6,
                       max_iters: int = 500) -> tuple[np.ndarray, float]:
     """Joint positions q (n,) within limits putting the tool at ``position`` (3,) (and ``rotation`` (3, 3) if given).
@@ -56,7 +56,7 @@ def solve_position_ik(robot: RobotModel, position: np.ndarray, rotation: np.ndar
     return q, pos_err
 
 
-def solve_pose_ik(robot: RobotModel, position: np.ndarray, rotation: np.ndarray | None = None,
+def solve_pose_ik(robot: ArmModel, position: np.ndarray, rotation: np.ndarray | None = None,
                   q0: np.ndarray | None = None, tol: float = 1e-6,
                   max_iters: int = 500, posture: float = 0.0) -> tuple[np.ndarray, float, float]:
     """As ``solve_position_ik``, returning (q (n,), position error [m], rotation error [rad]); the

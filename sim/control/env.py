@@ -32,6 +32,7 @@ from dm_control.rl import control
 from lfd.demos import DemoSet, load_demos
 from lfd.field import Field
 from robots import RobotModel, load_robot
+from robots.limits import Limits
 from sim.control.controller import Gains
 from sim.control.task import ArmPhysics, FieldTrackingTask
 from sim.errors import SimError
@@ -210,7 +211,8 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
                      settle_s: float = SETTLE_S, ik: str = "dls", actuation: str | None = None,
                      perturbations: Sequence[Perturbation] = (), gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None, dynamics: str = "mujoco",
-                     clearance: Clearance | None = None, goal: np.ndarray | None = None) -> FieldEnvironment:
+                     clearance: Clearance | None = None, goal: np.ndarray | None = None,
+                     limiter: bool = False, limits: Limits | None = None) -> FieldEnvironment:
     """A dm_control Environment of the arm following task velocities (``sim.control.task``), whose ``step``
     is the lean one of the module docstring.
 
@@ -235,7 +237,8 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
         episode starts uniformly in that ball around the start, drawn from ``seed``.
     duration_s : float, optional
         Episode length, s (default: the setup's, the demo's duration plus ``settle_s``).
-    control_hz : the control rate, an integer divisor of the physics rate.
+    control_hz : the control rate, an integer divisor of the physics rate (a rate above the physics
+        rate sets the physics step of ``physics`` to the control step).
     physics : an ``ArmPhysics.from_robot(setup.robot)`` to reuse one compiled model.
     dynamics : computed torque from MuJoCo's M(q) and bias forces (``mujoco``) or Pinocchio's RNEA.
     clearance : whole-arm collision dampers in the IK (``sim.scene.collision``; default None: none).
@@ -243,6 +246,8 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
         Run toward this goal, in the demos' frame (``RunSetup.resolve``): the ``goal`` observation,
         and ``learner_field.toward(goal)`` for ``field_velocity``. A position task takes a new goal
         for each later episode from ``env.task.set_goal`` (read at the reset).
+    limiter, limits : control through ``robots.controller.ArmController`` and its jerk-limited limiter,
+        within ``limits`` (default the robot's; ``FieldTrackingTask``).
     Others as ``sim.control.task.FieldTrackingTask`` and ``sim.control.controller.FieldController``.
     """
     if isinstance(robot, RunSetup):
@@ -266,9 +271,12 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
         learner_field = learner_field.toward(np.asarray(goal, dtype=np.float64))
     target = None if learner_field is None else learner_field.goal_at(setup.duration_s)
     physics = ArmPhysics.from_robot(setup.robot) if physics is None else physics
+    if control_hz > 0 and 1.0 / control_hz < physics.model.opt.timestep - 1e-12:
+        physics.model.opt.timestep = 1.0 / control_hz   # a control rate above the physics rate: physics at it
     control_dt = _control_dt(control_hz, physics.model.opt.timestep)
     task = FieldTrackingTask(setup, control_dt, goal=target, ik=ik, perturbations=perturbations, gains=gains,
                              feedforward=feedforward, mj_model=physics.model.ptr, start_radius=start_radius,
-                             seed=seed, field=learner_field, dynamics=dynamics, clearance=clearance)
+                             seed=seed, field=learner_field, dynamics=dynamics, clearance=clearance,
+                             limiter=limiter, limits=limits)
     return FieldEnvironment(physics, task, time_limit=setup.duration_s, control_timestep=control_dt,
                             legacy_step=False)

@@ -92,7 +92,19 @@ class RunTrace:
         influence distance; the last row: inf). None without it.
     guard_active : ndarray of bool, shape (K+1,), or None
         Steps at which a damper held the IK at its bound.
+    joint_command, ik_command : ndarray, shape (K+1, n), or None
+        With an ``ArmController`` (``FieldTrackingTask.limiter``): the joint-velocity command stream
+        the arm was sent and the IK's joint velocity the limiter took as its target, rad/s (the last
+        row zero: no step follows). None otherwise.
     """
+
+    @property
+    def limiter_acted(self) -> np.ndarray | None:
+        """Steps at which the limiter changed the IK's command (by more than 1e-9 rad/s), shape (K+1,)
+        of bool, or None without a limiter."""
+        if self.joint_command is None or self.ik_command is None:
+            return None
+        return np.abs(self.joint_command - self.ik_command).max(axis=1) > 1e-9
 
     t: np.ndarray
     ee: np.ndarray
@@ -119,6 +131,8 @@ class RunTrace:
     ee_rot: np.ndarray | None = None
     arm_clearance_m: np.ndarray | None = None
     guard_active: np.ndarray | None = None
+    joint_command: np.ndarray | None = None
+    ik_command: np.ndarray | None = None
 
     def steps_at(self, times: np.ndarray) -> np.ndarray:
         """Index, shape (F,), of the control step nearest each of ``times`` (F,), s (the last step
@@ -166,7 +180,7 @@ def execute(env: control.Environment, runner: Runner, fps: float = FPS, progress
     env.reset()
     m, d = env.physics.model.ptr, env.physics.data.ptr
     rec = _Record.allocate(task.n_steps, task.control_dt, task.robot.n, m.nq, task.placement.dim, fps,
-                           task.placement.pose, task.controller.guard is not None)
+                           task.placement.pose, task.controller.guard is not None, task.arm is not None)
     hits0 = getattr(task.controller.ik, "limit_hits", 0)
     messages: list[str] = []
     prev_handler = mujoco.get_mju_user_warning()
@@ -194,6 +208,7 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, runner: 
         rec.frame_qpos, rec.step_s
     ROT = rec.rot   # a pose task's tool rotations (None otherwise)
     guard, CLR, GA = ctl.guard, rec.clearance, rec.guarded   # whole-arm clearance (None without it)
+    arm, CMD, IKC = task.arm, rec.joint_command, rec.ik_command   # the joint-velocity stream (None without it)
     warn, bad = d.warning.number, [int(w) for w in _DIVERGENCE]
     # the divergence counters as one view when they are consecutive (one bytes compare a step)
     b0 = min(bad)
@@ -218,14 +233,17 @@ def _loop(task: FieldTrackingTask, m: mujoco.MjModel, d: mujoco.MjData, runner: 
             j += 1
             next_frame = int(fsteps[j]) if j < len(fsteps) else -1
         if ROT is not None:
-            ROT[k] = ctl.measured_rotation()
+            ROT[k] = step.measured_rotation()
         v = V[k] = runner(x, k * dt)
         command(v)
         if guard is not None and CLR is not None and GA is not None:
             CLR[k] = guard.min_distance
-            GA[k] = ctl.guard_active
+            GA[k] = ctl.guard_active if arm is None else arm.guarded
         if push_body >= 0:
             F[k] = force
+        if arm is not None and CMD is not None and IKC is not None:
+            CMD[k] = arm.dq_cmd
+            IKC[k] = arm.dq_ik
         end()
         if (bad_view.tobytes() != no_warning if bad_view is not None else
                 warn[bad[0]] or warn[bad[1]] or warn[bad[2]] or warn[bad[3]]):
@@ -259,7 +277,8 @@ def _record_final(task: FieldTrackingTask, d: mujoco.MjData, runner: Runner, rec
 class _Record:
     """What the loop writes: q, qdot (K+1, n), ee (K+1, 3), command (K+1, d), force (K+1, 3),
     step_s (K,), and the full qpos frame_qpos (F, nq) at the video frame times frame_t (F,), i.e. at
-    control steps frame_steps (F,); a pose task's tool rotations rot (K+1, 3, 3)."""
+    control steps frame_steps (F,); a pose task's tool rotations rot (K+1, 3, 3); with an
+    ``ArmController`` its commands joint_command and the IK's ik_command (K+1, n) (last row zero)."""
 
     q: np.ndarray
     qdot: np.ndarray
@@ -273,16 +292,19 @@ class _Record:
     rot: np.ndarray | None = None
     clearance: np.ndarray | None = None
     guarded: np.ndarray | None = None
+    joint_command: np.ndarray | None = None
+    ik_command: np.ndarray | None = None
 
     @classmethod
     def allocate(cls, K: int, dt: float, n: int, nq: int, dim: int, fps: float, pose: bool = False,
-                 guard: bool = False) -> _Record:
+                 guard: bool = False, stream: bool = False) -> _Record:
         ftimes = frame_times(K * dt, fps)
         fsteps = np.minimum(np.round(ftimes / dt).astype(int), K)
         return cls(np.empty((K + 1, n)), np.empty((K + 1, n)), np.empty((K + 1, 3)), np.empty((K + 1, dim)),
                    np.zeros((K + 1, 3)), np.empty(K), ftimes, fsteps, np.empty((len(fsteps), nq)),
                    np.empty((K + 1, 3, 3)) if pose else None,
-                   np.full(K + 1, np.inf) if guard else None, np.zeros(K + 1, dtype=bool) if guard else None)
+                   np.full(K + 1, np.inf) if guard else None, np.zeros(K + 1, dtype=bool) if guard else None,
+                   np.zeros((K + 1, n)) if stream else None, np.zeros((K + 1, n)) if stream else None)
 
 
 def _to_trace(rec: _Record, task: FieldTrackingTask, runner: Runner, wall: float, cpu: float,
@@ -302,7 +324,8 @@ def _to_trace(rec: _Record, task: FieldTrackingTask, runner: Runner, wall: float
         push_force=None if s.push_force is None else s.push_force[:3].copy(), push_body=s.push_body,
         ik_limit_hits=ik_limit_hits, joint_limit_violations=violations,
         phase=phase, hold_window_s=s.hold_window_s, cpu_s=cpu, mocap_pos=s.mocap_pos, ee_rot=rec.rot,
-        arm_clearance_m=rec.clearance, guard_active=rec.guarded)
+        arm_clearance_m=rec.clearance, guard_active=rec.guarded, joint_command=rec.joint_command,
+        ik_command=rec.ik_command)
 
 
 def _divergence_message(d: mujoco.MjData, k: int, dt: float, bad: list[int]) -> str:

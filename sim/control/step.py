@@ -14,6 +14,12 @@ Every control step k (t_k = k dt), on the raw MuJoCo model and data:
 4. ``end``: ``mj_step2`` and the remaining physics steps (or ``mj_step`` without the split);
    inside a ``Hold`` window the arm joints are then clamped at rest where the hold began.
 
+With an ``ArmController`` (``robots.controller``: the controller a real arm runs, MuJoCo-free) the
+step streams joint velocities as a real arm takes them: ``begin`` measures q and runs its step 1
+(Pinocchio's FK and the task point; the goal shift is its ``offset``), ``command(v)`` its steps 3-4
+(twist, IK with the whole-arm guard, the jerk-limited limiter) and the actuators track the limited
+joint-velocity command (``FieldController.actuate``: the servos' feed-forward, or computed torque).
+
 The lean loop (``sim.control.loop``), the dm_env environment's step (``sim.control.env``) and dm_control's generic
 step (``FieldTrackingTask.before_step``) all call these; the loop only adds recording.
 """
@@ -27,6 +33,7 @@ import mujoco
 import numpy as np
 
 from robots import RobotModel
+from robots.controller import ArmController
 from sim.control.controller import FieldController
 from sim.scene.perturbations import Schedule
 
@@ -53,6 +60,9 @@ class ControlStep:
         The run's perturbations, compiled (``sim.scene.perturbations.compile_schedule``).
     n_sub : int
         Physics steps per control step.
+    arm : ArmController, optional
+        Stream joint velocities through this controller (module docstring); its ``offset`` is set to
+        the schedule's goal shift.
 
     Attributes
     ----------
@@ -64,8 +74,12 @@ class ControlStep:
         The tool position measured by the last ``begin``, world, m (a view, valid until the next).
     """
 
-    def __init__(self, robot: RobotModel, controller: FieldController, schedule: Schedule, n_sub: int) -> None:
+    def __init__(self, robot: RobotModel, controller: FieldController, schedule: Schedule, n_sub: int,
+                 arm: ArmController | None = None) -> None:
         self.robot, self.controller, self.schedule, self.n_sub = robot, controller, schedule, int(n_sub)
+        self.arm = arm
+        if arm is not None:
+            arm.offset = schedule.goal_offset_task.copy()
         self.k = 0
         self.q: np.ndarray = np.zeros(robot.n)
         self.p: np.ndarray = np.zeros(3)
@@ -95,6 +109,8 @@ class ControlStep:
         self._push = s.push_body
         self._push_row = data.xfrc_applied[max(s.push_body, 0)]
         self._k0, self._k1 = s.push_steps
+        self._acts = np.asarray(self.robot.mj_actuator_ids)
+        self._qvel_arm = contiguous(data.qvel, self._dadr)
 
     def reset(self) -> None:
         """Start a run: the step index back to 0."""
@@ -103,6 +119,9 @@ class ControlStep:
 
     def begin(self) -> np.ndarray:
         """Steps 1 of the module docstring: returns the measured tool position p, shape (3,), world."""
+        if self.arm is not None:
+            self._x = self._begin_arm()
+            return self.p
         if self._split:
             _step1(self.model, self.data)
         q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
@@ -115,11 +134,15 @@ class ControlStep:
 
     def field_point(self) -> np.ndarray:
         """Step 2: the task point x - dg, shape (d,), where the field is evaluated."""
+        if self.arm is not None:
+            return self._x
         x = self._x if self._pose else self._to_task(self.p)
         return x - self._shift if self._shifted else x
 
     def begin_at_point(self) -> np.ndarray:
         """Steps 1 and 2 in one call (the loop's): ``begin``, then the field's point x - dg, shape (d,)."""
+        if self.arm is not None:
+            return self._begin_arm()
         if self._split:
             _step1(self.model, self.data)
         q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
@@ -133,7 +156,11 @@ class ControlStep:
         """Step 3: write the actuator commands for the task velocity v, shape (d,), task units/s, at
         the state measured by ``begin``, then this step's perturbations."""
         model, data, k, s = self.model, self.data, self.k, self.schedule
-        self._fast(model, data, self.q, v)
+        if self.arm is not None:
+            dq = self._qvel[self._dadr] if self._qvel_arm is None else self._qvel_arm
+            data.ctrl[self._acts] = self.controller.actuate(self.q, dq, self.arm.command(v), model, data)
+        else:
+            self._fast(model, data, self.q, v)
         if self._push >= 0:
             if self._k0 <= k < self._k1:
                 self._push_row[:] = s.push_force
@@ -146,6 +173,23 @@ class ControlStep:
             if self._split:   # the physics must see the noisy velocity, as a plain mj_step would
                 _step1(model, data)
         self.k = k + 1
+
+    def _begin_arm(self) -> np.ndarray:
+        """Step 1 through the ``ArmController``: q measured (after ``mj_step1`` with ``split``), its
+        FK and task point; returns x - dg, shape (d,)."""
+        if self._split:
+            _step1(self.model, self.data)
+        q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
+        if self.k == self._h0:
+            self._q_hold = q.copy()
+        assert self.arm is not None
+        x = self.arm.point(q)
+        self.p = self.arm.p
+        return x
+
+    def measured_rotation(self) -> np.ndarray:
+        """The tool rotation, shape (3, 3), world, measured by the last ``begin``."""
+        return self.arm.rot if self.arm is not None else self.controller.measured_rotation()
 
     def end(self) -> None:
         """Step 4: advance the physics by one control period (and clamp the arm inside a hold)."""

@@ -38,7 +38,9 @@ from dm_env import specs
 
 from lfd.field import Field
 from lfd.runner import Runner
-from robots import RobotModel
+from robots import RobotError, RobotModel
+from robots.controller import ArmController, Guard
+from robots.limits import Limits, limits_of
 from sim.control.controller import FieldController, Gains
 from sim.control.step import ControlStep, contiguous
 from sim.errors import PlacementError, SimError
@@ -118,13 +120,21 @@ class FieldTrackingTask(control.Task):
         A velocity field in task units; adds the ``field_velocity`` observation (its runner,
         ``lfd.runner``, stepped once per observation: the action ``sim.control.loop.execute`` would take).
     mj_model : the simulated model (default ``setup.robot.mj_model``).
+    limiter : bool
+        Control through ``robots.controller.ArmController`` with its jerk-limited limiter within the
+        robot's published limits (``robots.limits``; a robot without finite acceleration and jerk
+        limits: ``SimError``): the joint-velocity stream a real arm takes (``sim.control.step``).
+    limits : Limits, optional
+        The limiter's limits (default ``robots.limits.limits_of(robot)``; e.g. another arm's that shares
+        this one's kinematics).
     Others as ``sim.control.controller.FieldController``.
     """
 
     def __init__(self, setup: RunSetup, control_dt: float, *, goal: np.ndarray | None = None, ik: str = "dls",
                  perturbations: Sequence[Perturbation] = (), gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
-                 field: Field | None = None, dynamics: str = "mujoco", clearance: Clearance | None = None) -> None:
+                 field: Field | None = None, dynamics: str = "mujoco", clearance: Clearance | None = None,
+                 limiter: bool = False, limits: Limits | None = None) -> None:
         robot, placement = setup.robot, setup.placement
         model = robot.mj_model if mj_model is None else mj_model
         self.setup = setup
@@ -161,9 +171,11 @@ class FieldTrackingTask(control.Task):
         self.controller = FieldController(robot, placement, control_dt, ik=ik,
                                           rotation_ref=self.rotation_ref, gains=gains, feedforward=feedforward,
                                           mj_model=model, dynamics=dynamics, clearance=clearance)
+        #: the controller a real arm would run (``limiter``), or None
+        self.arm = self._arm_controller(limits_of(robot) if limits is None else limits) if limiter else None
         #: the control step (``sim.control.step``) that the loop, the environment and ``before_step`` call
         self.step = ControlStep(robot, self.controller, self.schedule,
-                                int(round(self.control_dt / float(model.opt.timestep))))
+                                int(round(self.control_dt / float(model.opt.timestep))), arm=self.arm)
         self.clipped_actions = 0
         self._qadr, self._dadr = robot.mj_qpos_adr, robot.mj_dof_adr
         self._acts = robot.mj_actuator_ids
@@ -196,6 +208,25 @@ class FieldTrackingTask(control.Task):
         bounds = np.cumsum([0, n, n, 3, d, d, n]).tolist()
         self._obs_slices = tuple(slice(a, b) for a, b in zip(bounds[:-1], bounds[1:]))
         self._observe: Callable[..., float] | None = None
+
+    def _arm_controller(self, limits: Limits) -> ArmController:
+        """The ``ArmController`` of ``limiter``: this placement's frame, the controller's gains, the
+        robot's limits, and the whole-arm dampers as its guard (``ArmClearance`` on this run's data)."""
+        ctl, robot = self.controller, self.robot
+        frame = self.placement.task_frame(robot.planar, self.rotation_ref, ctl.gains.plane, ctl.gains.rotation)
+        guard = ctl.guard
+        rows: Guard | None = None
+        if guard is not None:
+            def rows(q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+                model, data = self.step.model, self.step.data
+                if not ctl.split:   # no mj_step1 this step: MuJoCo's poses are the last step's
+                    mujoco.mj_kinematics(model, data)
+                    mujoco.mj_comPos(model, data)
+                return guard.rows(data) if guard.check(data, dq) else None
+        try:
+            return ArmController(robot, frame, self.control_dt, limits=limits, guard=rows)
+        except RobotError as exc:
+            raise SimError(str(exc)) from None
 
     def _draw_start(self) -> None:
         """A start uniform in the ball of ``start_radius`` around the nominal start (module docstring)."""
@@ -240,6 +271,8 @@ class FieldTrackingTask(control.Task):
             data.mocap_pos[:] = self.schedule.mocap_pos[0]
         data.ctrl[self._acts] = self.q_start if self.controller.actuation == "position" else 0.0
         self.controller.reset(self.q_start)
+        if self.arm is not None:
+            self.arm.start()   # the loop calls the field between the controller's halves
         self.step.bind(physics.model.ptr, data)
         self.step.reset()
         self.clipped_actions = 0

@@ -31,6 +31,7 @@ COLUMNS: tuple[tuple[str, str, float, str, bool], ...] = (
     ("tracking_rmse_deg", "tracking RMSE (°)", 1.0, ".2f", True),
     ("obstacle_min_clearance_m", "obstacle clearance (mm)", 1e3, ".1f", False),
     ("joint_limit_violations", "joint-limit violations", 1.0, ".0f", False),
+    ("limiter_active_s", "limiter acting (s)", 1.0, ".2f", False),
 )
 #: the metrics whose best is named in the verdict's sentence, with their words
 HEADLINE: dict[str, str] = {"final_goal_error_m": "goal error", "tracking_rmse_m": "tracking",
@@ -79,6 +80,9 @@ def run_problems(label: str, m: dict[str, Any], duration_s: float) -> list[str]:
         worst = "" if dev is None else f" (it was pushed up to {dev * 1e3:.1f} mm away)"
         out.append(f"{label} never came back within {RECOVERY_TOLERANCE_M * 1e3:g} mm of its unpushed path "
                    f"after the push{worst}.")
+    over = m.get("command_limits", {}).get("violations")
+    if over:
+        out.append(f"{label} sent {over} commands over the arm's published limits.")
     if m.get("obstacle_steps_in_contact"):
         out.append(f"{label} touched an obstacle in {m['obstacle_steps_in_contact']} control steps.")
     return out
@@ -208,7 +212,9 @@ def _facts(report: dict[str, Any]) -> list[tuple[str, str]]:
     s = report["settings"]
     video = s["video"]
     return [("seed", str(s["seed"])), ("robot", f"{s['robot']} ({s['actuation']}, IK {s['ik']}, "
-                                                 f"{s['control_hz']:g} Hz)"),
+                                                 f"{s['control_hz']:g} Hz"
+                                                 + (", joint velocities through the limiter" if s.get("limiter")
+                                                    else "") + ")"),
             ("demos", f"{s['demos']} (demo {s['demo_index']})"), ("run length", f"{s['duration_s']:g} s"),
             ("learners", ", ".join(f"{k} ({'trained' if v.get('trained_now') else 'cached'})"
                                    for k, v in report["models"].items())),

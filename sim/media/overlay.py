@@ -24,6 +24,7 @@ FIELD_RGB: RGB = (40, 170, 80)       # green, medium
 TRACE_RGB: RGB = (255, 120, 0)       # orange, thinnest
 GOAL_RGB: RGB = (255, 215, 0)
 PUSH_RGB: RGB = (220, 20, 20)
+LIMITER_RGB: RGB = (200, 120, 0)   # the 'limiter acting' label
 TEXT_RGB: RGB = (20, 20, 20)
 PANEL_RGB: RGB = (245, 245, 245)
 LEGEND = (("demonstration", DEMO_RGB, 10.0), ("field rollout", FIELD_RGB, 6.0), ("robot trace", TRACE_RGB, 3.0))
@@ -69,11 +70,13 @@ class Style:
 @dataclass
 class FrameText:
     """The labels of one frame: ``title`` (learner and scenario), simulated time ``t`` (s),
-    tracking error ``error_m`` (m, None: not shown)."""
+    tracking error ``error_m`` (m, None: not shown), and ``limiter``: whether the joint-velocity
+    limiter (``robots.limiter``) held the command back around this frame (labelled when True)."""
 
     title: str
     t: float
     error_m: float | None = None
+    limiter: bool = False
 
 
 def _polyline(draw: ImageDraw.ImageDraw, uv: np.ndarray, rgb: RGB, width: int) -> None:
@@ -172,13 +175,18 @@ def draw_dynamic(img: Image.Image, trace_uv: np.ndarray, goal_uv: np.ndarray,
 
 
 def draw_labels(img: Image.Image, text: FrameText) -> None:
-    """The simulated time (top right) and the tracking error with a bar (bottom left); the title
-    is drawn once, in ``draw_static``."""
+    """The simulated time (top right; below it "limiter acting" while the limiter holds the command),
+    and the tracking error with a bar (bottom left); the title is drawn once, in ``draw_static``."""
     st = Style(img.height)
     draw = ImageDraw.Draw(img)
     f = font(st.font_size)
     pad = st.px(6)
     _boxed(draw, (img.width - pad, pad), f"t = {text.t:5.2f} s", f, "rt", pad)
+    if text.limiter:   # below the time: the command is being held at the limits
+        xy = (img.width - pad, pad + st.font_size + 3 * pad)
+        box = draw.textbbox(xy, "limiter acting", font=f, anchor="rt")
+        draw.rectangle([box[0] - pad, box[1] - pad // 2, box[2] + pad, box[3] + pad // 2], fill=LIMITER_RGB)
+        draw.text(xy, "limiter acting", fill=(255, 255, 255), font=f, anchor="rt")
     if text.error_m is not None:
         label = f"tracking error {text.error_m * 1e3:5.1f} mm"
         x0, y1 = pad, img.height - pad

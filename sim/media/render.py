@@ -476,7 +476,9 @@ def _panel_frame(r: SceneRenderer, data: mujoco.MjData, cam: mujoco.MjvCamera, p
     img = Image.fromarray(image)
     err = None if panel.reference is None else float(np.linalg.norm(ro.ee[k] - panel.reference[k]))
     goal = ro.goal_world if panel.goal_path is None else panel.goal_path[k]
-    draw_dynamic(img, proj(trace), proj(goal[None])[0], push_uv, dot_uv, FrameText(panel.title, t, err))
+    acted = ro.limiter_acted   # the limiter held the command within the last 50 ms
+    held = acted is not None and bool(acted[max(0, k - int(round(0.05 / dt))):k + 1].any())
+    draw_dynamic(img, proj(trace), proj(goal[None])[0], push_uv, dot_uv, FrameText(panel.title, t, err, held))
     if ro.ee_rot is not None:
         draw_frames(img, *_frame_uv(proj, ro.ee[k][None], ro.ee_rot[k][None], 2.0 * axes_len), 4)
     return np.asarray(img)

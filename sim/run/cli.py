@@ -205,6 +205,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=1.0, metavar="S",
                    help="run every learned motion S times faster (below 1: slower), 0.05 to 20 (default 1)")
     p.add_argument("--control-hz", type=float, default=500.0, help="control rate in Hz (default 500)")
+    p.add_argument("--limiter", action="store_true",
+                   help="stream joint velocities as a real arm takes them: the robot's controller "
+                        "(robots.controller) with an online jerk-limited limiter within its published limits; "
+                        "use with --control-hz 1000 for the Franka's rate")
+    p.add_argument("--limits", metavar="FILE",
+                   help="the arm's limits as JSON (robots.limits.load_limits: q_min, q_max, dq_max, ddq_max, "
+                        "dddq_max, ...; default: the robot's published ones, or its model's)")
     p.add_argument("--iters", type=int, help="training iterations (default: the learner's)")
     p.add_argument("--quiet", action="store_true", help="print only the results table and errors")
     return p
@@ -229,7 +236,7 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
         push=PushSpec(args.push_force, args.push_start, args.push_duration, args.push_direction),
         obstacles=tuple(args.obstacle), goal=args.goal, goal_shift=args.goal_shift, goal_path=args.goal_path,
         arm_clearance=not args.no_arm_clearance, speed=args.speed, via=tuple(args.via), control_hz=args.control_hz,
-        iters=args.iters,
+        limiter=args.limiter, limits=args.limits, iters=args.iters,
         quiet=args.quiet, command=tuple(command))
 
 

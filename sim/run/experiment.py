@@ -28,7 +28,7 @@ from lfd.field import Field, goal_at, space_mismatch
 from lfd.obstacles import Obstacle
 from lfd.runner import Runner
 from robots import RobotModel
-from robots.limits import limits_of
+from robots.limits import Limits, limits_of
 from sim.control.controller import Gains
 from sim.control.env import FieldEnvironment, make_environment
 from sim.control.loop import FPS, RunTrace, execute
@@ -36,7 +36,14 @@ from sim.control.task import ArmPhysics
 from sim.errors import SimError
 from sim.media.camera import CameraSpec
 from sim.media.render import HEIGHT, WIDTH, Panel, render_panels
-from sim.metrics import RECOVERY_TOLERANCE_M, clearance_metrics, orientation_metrics, recovery_time, run_metrics
+from sim.metrics import (
+    RECOVERY_TOLERANCE_M,
+    clearance_metrics,
+    command_metrics,
+    orientation_metrics,
+    recovery_time,
+    run_metrics,
+)
 from sim.scene.collision import TABLE_GEOM, Clearance
 from sim.scene.obstacles import mocap_path
 from sim.scene.perturbations import GoalShift, Hold, JointVelocityNoise, Perturbation, Push, StartOffset
@@ -117,7 +124,10 @@ class Experiment:
         The demonstrations (positions or poses); needed with a robot.
     placement, plane, size_m, demo_index, obstacles, time_factor, settle_s :
         The setup options of ``RunSetup.resolve``.
-    control_hz, ik, gains, feedforward : as ``sim.make_environment``.
+    control_hz, ik, gains, feedforward, limiter : as ``sim.make_environment``.
+    limits : Limits, optional
+        The arm's limits (default ``robots.limits.limits_of(robot)``): the limiter's, and every run's
+        report against them.
     fps : float
         Rate at which the rollouts keep the full qpos for video, frames per simulated second.
     clearance : Clearance, None or "auto"
@@ -130,7 +140,7 @@ class Experiment:
                  demo_index: int = 0, control_hz: float = 500.0, ik: str = "dls", settle_s: float = SETTLE_S,
                  gains: Gains = Gains(), feedforward: bool = True, fps: float = FPS,
                  obstacles: Sequence[Obstacle] = (), clearance: Clearance | str | None = "auto",
-                 time_factor: float = 1.0) -> None:
+                 time_factor: float = 1.0, limiter: bool = False, limits: Limits | None = None) -> None:
         if isinstance(robot, RunSetup):
             self.setup = robot
         else:
@@ -146,14 +156,14 @@ class Experiment:
             setup.placement
         self.start, self.duration_s, self.obstacles = setup.start, setup.duration_s, setup.obstacles
         #: the arm's motion limits (``robots.limits``): every run reports its peaks against them
-        self.limits = limits_of(setup.robot)
+        self.limits = limits_of(setup.robot) if limits is None else limits
         if isinstance(clearance, str):
             if clearance != "auto":
                 raise SimError(f"clearance must be a Clearance, None or 'auto', not '{clearance}'")
             table = mujoco.mj_name2id(setup.robot.mj_model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM) >= 0
             clearance = Clearance() if (setup.obstacles or table) else None
         self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, gains=gains, feedforward=feedforward,
-                                            clearance=clearance)
+                                            clearance=clearance, limiter=limiter, limits=self.limits)
         self.physics = ArmPhysics.from_robot(setup.robot)
         self.base = base_position(setup.robot)
         self.fps = float(fps)   # the rollouts record the full qpos at this video frame rate
@@ -244,6 +254,9 @@ class Experiment:
         metrics.update(joint_limit_violations=ro.joint_limit_violations, ik_limit_hits=ro.ik_limit_hits,
                        realtime_factor=ro.realtime_factor, control_step_us=ro.control_step_us,
                        motion_limits=self.limits.check(ro.t, ro.q, ro.qdot, ro.ee, ro.ee_rot))
+        if ro.joint_command is not None:
+            assert ro.ik_command is not None
+            metrics.update(command_metrics(self.limits, ro.t, ro.q, ro.joint_command, ro.ik_command))
         if ro.phase is not None:
             free_phase = None if cached is None else cached[2]
             metrics.update(self.phase_metrics(field, runner, ro, window, free_phase))
@@ -313,7 +326,7 @@ class Experiment:
         """The experiment's settings, for the metrics JSON."""
         clearance = self.options["clearance"]
         opts = dict(self.options, gains=dataclasses.asdict(self.options["gains"]),
-                    clearance=None if clearance is None else dataclasses.asdict(clearance))
+                    clearance=None if clearance is None else dataclasses.asdict(clearance), limits=self.limits.name)
         return {"robot": self.robot.name, "ee_frame": self.robot.ee_frame, "demos": self.demos.name,
                 "demo_index": self.setup.demo_index, "duration_s": self.duration_s,
                 "placement": self.placement.to_dict(), "actuation": self.robot.actuation, **opts}

@@ -61,7 +61,10 @@ class ArmJob:
     ``clean`` is the clean-up of a recorded ``demos`` (``lfd.load_demos``: True all steps, or the steps'
     names). ``speed`` S runs every learned motion S times faster (``lfd.retime.at_speed``), the run
     1/S as long before its settling time. ``via`` (``lfd.via.parse_via`` texts, task units) makes the
-    tracking learner's motion pass through those points (``lfd.via.through``). ``obstacles`` are
+    tracking learner's motion pass through those points (``lfd.via.through``). ``limiter`` controls
+    through ``robots.controller.ArmController`` (the controller a real arm runs) with its jerk-limited
+    limiter of the joint-velocity stream (``robots.limiter``); ``limits`` is a JSON file of the arm's
+    limits (``robots.limits.load_limits``; default the robot's own). ``obstacles`` are
     ``lfd.obstacles.parse_obstacle`` texts, in task units; with
     ``arm_clearance`` (the default) the fields keep the tool point the hand's size
     (``sim.scene.collision.hand_margin_m``) more than each obstacle's margin away, and collision dampers in
@@ -105,6 +108,8 @@ class ArmJob:
     speed: float = 1.0
     via: tuple[str, ...] = ()
     control_hz: float = 500.0
+    limiter: bool = False
+    limits: str | None = None
     iters: int | None = None
     quiet: bool = False
     command: tuple[str, ...] = field(default_factory=lambda: tuple(sys.argv))

@@ -105,12 +105,27 @@ def execute(plan: JobPlan, run: PlannedRun, on_run: Callable[[RunResult], None] 
 
 def _say_limits(plan: JobPlan, results: list[RunResult]) -> None:
     """One line on stderr (unless quiet) when runs went over the arm's published limits
-    (``robots.limits``; metrics.json ``motion_limits`` holds each run's peaks)."""
+    (``robots.limits``; metrics.json ``motion_limits`` holds each run's peaks, and with ``--limiter``
+    ``command_limits`` those of the command stream), or when the limiter held the stream back."""
     runs = list({id(r): r for r in results}.values())
-    over = [r for r in runs if r.metrics["motion_limits"]["violations"]]
-    if over and not plan.job.quiet:
-        where = max(over, key=lambda r: worst(r.metrics["motion_limits"])[1])
-        name, peak = worst(where.metrics["motion_limits"])
-        print(f"limits: {len(over)} of {len(runs)} runs went over {plan.exp.limits.name}'s published limits, "
-              f"most {name} at {peak:.2f}x its limit ({where.learner} / {where.scenario}); nothing limits the "
-              "command stream yet (metrics.json motion_limits)", file=sys.stderr)
+    key = "command_limits" if runs and "command_limits" in runs[0].metrics else "motion_limits"
+    over = [r for r in runs if r.metrics[key]["violations"]]
+    if plan.job.quiet:
+        return
+    name = plan.exp.limits.name
+    if over:
+        where = max(over, key=lambda r: worst(r.metrics[key])[1])
+        what, peak = worst(where.metrics[key])
+        rest = "the limiter's command stream went over them (a defect: please report it)" if key == "command_limits" \
+            else "--limiter keeps the command stream within them"
+        print(f"limits: {len(over)} of {len(runs)} runs went over {name}'s published limits, most {what} at "
+              f"{peak:.2f}x its limit ({where.learner} / {where.scenario}); {rest} (metrics.json {key})",
+              file=sys.stderr)
+    elif key == "command_limits":
+        held = max(runs, key=lambda r: r.metrics["limiter_active_s"])
+        m = held.metrics
+        if m["limiter_active_s"] > 0:
+            t0, t1 = m["limiter_window_s"]
+            print(f"limiter: held the command stream within {name}'s limits for {m['limiter_active_s']:.2f} s "
+                  f"between {t0:.2f} s and {t1:.2f} s in the longest case ({held.learner} / {held.scenario}); "
+                  "where it acts the motion lags its field", file=sys.stderr)

@@ -31,6 +31,8 @@ from lfd.obstacles import MIN_GOAL_GAMMA, Obstacle, parse_obstacle
 from lfd.retime import at_speed
 from lfd.via import parse_via, through
 from robots import RobotError, RobotModel, load_robot
+from robots.limiter import JointLimiter
+from robots.limits import limits_of, load_limits
 from sim.control.controller import Gains
 from sim.errors import PlacementError
 from sim.media.gl import require_backend
@@ -149,8 +151,15 @@ def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle]) -> Exper
                              time_factor=among.time_factor if obstacles else 1.0, goal=job.goal)
     if job.speed != 1.0:   # the motion takes 1/S of the demos' time, then the same settling time
         setup = setup.retimed(job.speed)
-    return Experiment(setup, control_hz=job.control_hz, ik=job.ik, fps=job.fps,
-                      gains=among.gains() if obstacles else Gains(),
+    limits = None
+    if job.limits is not None:   # a RobotError (bad file) is the job's one line
+        limits = load_limits(job.limits)
+        if limits.n != robot.n:
+            raise ConfigError(f"--limits: {limits.n} joints in {job.limits}, but '{robot.name}' has {robot.n}")
+    if job.limiter:   # the limiter's limits, before any training
+        JointLimiter(limits_of(robot) if limits is None else limits, 1.0 / job.control_hz)
+    return Experiment(setup, control_hz=job.control_hz, ik=job.ik, fps=job.fps, limiter=job.limiter,
+                      gains=among.gains() if obstacles else Gains(), limits=limits,
                       clearance="auto" if job.arm_clearance else None)
 
 
@@ -184,13 +193,11 @@ def _avoided(job: ArmJob, exp: Experiment, obstacles: list[Obstacle], goal: tupl
 
 
 def _check_runs(job: ArmJob, exp: Experiment, vias: list[tuple[np.ndarray, float | None]]) -> None:
-    """The runs' own checks: via-points for the tracking learner on positions and within reach, a pose
+    """The runs' own checks: via-points on positions and within reach, a pose
     task's offset start within reach, the push within the run, and a GL back-end for the videos."""
     if vias:
-        learners = set(job.learners or DEFAULT_LEARNERS) | (set(SIDE_BY_SIDE_LEARNERS) if job.side_by_side else set())
-        if learners != {"tracking"} or exp.placement.pose or job.model:
-            raise ConfigError("--via conditions the tracking learner's reference: give --learner tracking, on "
-                              "position demos, and no --model or --side-by-side")
+        if exp.placement.pose:
+            raise ConfigError("--via takes position demos (a pose task's via-points are not supported)")
         try:
             exp.placement.check_reachable(exp.robot, np.stack([p for p, _ in vias]), rotation=exp.setup.rotation_ref)
         except PlacementError as e:
@@ -244,7 +251,8 @@ def _wrapped(name: str, f: Field, job: ArmJob, demos: DemoSet, exp: Experiment, 
     if job.goal is not None:   # the learned motion, toward the job's goal
         f = f.toward(np.asarray(job.goal, dtype=np.float64))
     if vias:
-        f = through(f, [p for p, _ in vias], [s for _, s in vias])
+        f = through(f, [p for p, _ in vias], [s for _, s in vias], start=exp.start,
+                    duration=float(exp.setup.demo_t[-1]))
     mismatch = space_mismatch(f, exp.placement.chart)
     if mismatch is not None:
         raise ConfigError(f"the {name} model does not fit the demos {demos.name}: {mismatch}")

@@ -25,6 +25,7 @@ import pinocchio as pin
 
 from lfd.pose import PoseChart
 from robots import Kinematics, RobotModel, solve_pose_ik
+from robots.task_frame import TaskFrame
 from sim.errors import PlacementError
 
 PLANES: tuple[str, ...] = ("auto", "horizontal", "vertical")
@@ -129,6 +130,17 @@ class Placement:
         if self.chart is None or not np.any(turn != 0):
             return x
         return self.to_task(self.to_world(x), pin.exp3(np.asarray(turn, dtype=np.float64)) @ self.rotation_to_world(x))
+
+    def task_frame(self, planar: bool, rotation_ref: np.ndarray | None = None, plane_gain: float = 20.0,
+                   rotation_gain: float = 10.0) -> TaskFrame:
+        """This placement as a ``robots.task_frame.TaskFrame``, for ``robots.controller.ArmController``:
+        on a spatial arm (``planar`` False) a 2-D task's pull onto its plane (``plane_gain``) and a
+        position task's held tool orientation ``rotation_ref`` (``rotation_gain``); neither on a planar arm."""
+        spatial = not planar
+        return TaskFrame(origin=self.origin.copy(), axes=self.axes.copy(), scale=self.scale,
+                         rotation=self.rotation.copy(), chart=self.chart,
+                         rotation_ref=rotation_ref if spatial and self.chart is None else None,
+                         plane_gain=plane_gain if spatial else 0.0, rotation_gain=rotation_gain)
 
     def solve_ik(self, robot: RobotModel, x: np.ndarray, held: np.ndarray | None = None,
                  q0: np.ndarray | None = None) -> tuple[np.ndarray, float, float, bool]:

@@ -16,6 +16,7 @@ and as paths (RMSE, m), the goal error, and the stream's peaks against the FR3's
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,8 +100,9 @@ def fr3_with_panda_hand() -> PinocchioArm:
                          tool=tool.homogeneous)
 
 
-def run_on_franka(demos: str, out: str) -> FrankaRun:
-    """``demos``' job with the tracking learner in our simulation and through franka-sim (module docstring)."""
+def run_on_franka(demos: str, out: str, host: str | None = None) -> FrankaRun:
+    """``demos``' job with the tracking learner in our simulation and through franka-sim (module
+    docstring): on the server at ``host``, or on one started for it."""
     plan = plan_job(sim.ArmJob(demos=demos, learners=("tracking",), scenarios=("none",), control_hz=1000.0,
                                limiter=True, videos=False, plots=False, quiet=True, overwrite=True, out=out))
     field = plan.fields["tracking"]
@@ -111,11 +113,13 @@ def run_on_franka(demos: str, out: str) -> FrankaRun:
     dt = float(ours.t[1] - ours.t[0])
     ctl = ArmController(arm, frame, dt, limits=STREAMED)
     ctl.start(field.runner(ours.start_task, dt))
-    with FrankaSimServer() as server:
-        start = move_to(server.host, ours.q[0])
+    with contextlib.ExitStack() as stack:
+        if host is None:
+            host = stack.enter_context(FrankaSimServer()).host
+        start = move_to(host, ours.q[0])
         if start.error is not None:
             raise SimError(f"franka-sim refused the move to the start: {start.error}")
-        record = stream_joint_velocities(server.host, ctl, exp.duration_s, wall_clock=True)
+        record = stream_joint_velocities(host, ctl, exp.duration_s, wall_clock=True)
     kin = Kinematics(arm)
     steps = np.isfinite(record.t_control)   # the controller's cycles
     tool = np.array([kin.update_position(q).copy() for q in record.q[steps]])

@@ -20,7 +20,7 @@ control.Environment)`` holds, which is what ``shimmy.DmControlCompatibilityV0`` 
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import dm_env
@@ -212,7 +212,8 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
                      perturbations: Sequence[Perturbation] = (), gains: Gains = Gains(),
                      feedforward: bool = True, physics: ArmPhysics | None = None, dynamics: str = "mujoco",
                      clearance: Clearance | None = None, goal: np.ndarray | None = None,
-                     limiter: bool = False, limits: Limits | None = None) -> FieldEnvironment:
+                     limiter: bool = False, limits: Limits | None = None,
+                     on_reset: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None) -> FieldEnvironment:
     """A dm_control Environment of the arm following task velocities (``sim.control.task``), whose ``step``
     is the lean one of the module docstring.
 
@@ -246,6 +247,7 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
         Run toward this goal, in the demos' frame (``RunSetup.resolve``): the ``goal`` observation,
         and ``learner_field.toward(goal)`` for ``field_velocity``. A position task takes a new goal
         for each later episode from ``env.task.set_goal`` (read at the reset).
+    on_reset : the scene's objects placed at each episode's start (``FieldTrackingTask``).
     limiter, limits : control through ``robots.controller.ArmController`` and its jerk-limited limiter,
         within ``limits`` (default the robot's; ``FieldTrackingTask``).
     Others as ``sim.control.task.FieldTrackingTask`` and ``sim.control.controller.FieldController``.
@@ -277,6 +279,6 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
     task = FieldTrackingTask(setup, control_dt, goal=target, ik=ik, perturbations=perturbations, gains=gains,
                              feedforward=feedforward, mj_model=physics.model.ptr, start_radius=start_radius,
                              seed=seed, field=learner_field, dynamics=dynamics, clearance=clearance,
-                             limiter=limiter, limits=limits)
+                             limiter=limiter, limits=limits, on_reset=on_reset)
     return FieldEnvironment(physics, task, time_limit=setup.duration_s, control_timestep=control_dt,
                             legacy_step=False)

@@ -124,6 +124,9 @@ class FieldTrackingTask(control.Task):
         Control through ``robots.controller.ArmController`` with its jerk-limited limiter within the
         robot's published limits (``robots.limits``; a robot without finite acceleration and jerk
         limits: ``SimError``): the joint-velocity stream a real arm takes (``sim.control.step``).
+    on_reset : callable, optional
+        on_reset(model, data) after the arm is placed at its start, every episode: the scene's objects
+        placed where the arm's start puts them (``sim.scene.pour.place_balls``).
     limits : Limits, optional
         The limiter's limits (default ``robots.limits.limits_of(robot)``; e.g. another arm's that shares
         this one's kinematics).
@@ -134,7 +137,8 @@ class FieldTrackingTask(control.Task):
                  perturbations: Sequence[Perturbation] = (), gains: Gains = Gains(), feedforward: bool = True,
                  mj_model: mujoco.MjModel | None = None, start_radius: float = 0.0, seed: int | None = None,
                  field: Field | None = None, dynamics: str = "mujoco", clearance: Clearance | None = None,
-                 limiter: bool = False, limits: Limits | None = None) -> None:
+                 limiter: bool = False, limits: Limits | None = None,
+                 on_reset: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None) -> None:
         robot, placement = setup.robot, setup.placement
         model = robot.mj_model if mj_model is None else mj_model
         self.setup = setup
@@ -161,6 +165,7 @@ class FieldTrackingTask(control.Task):
         self._next_goal: np.ndarray | None = None
         self._shift = self.schedule.goal_offset_task.copy()
         self.rotation_ref = setup.rotation_ref
+        self.on_reset = on_reset
         q0, err, rot_err, reached = placement.solve_ik(robot, self.start_task, self.rotation_ref)
         if not reached:
             p0 = placement.to_world(self.start_task)
@@ -270,6 +275,8 @@ class FieldTrackingTask(control.Task):
         if self.schedule.mocap_pos is not None:
             data.mocap_pos[:] = self.schedule.mocap_pos[0]
         data.ctrl[self._acts] = self.q_start if self.controller.actuation == "position" else 0.0
+        if self.on_reset is not None:
+            self.on_reset(physics.model.ptr, data)
         self.controller.reset(self.q_start)
         if self.arm is not None:
             self.arm.start()   # the loop calls the field between the controller's halves

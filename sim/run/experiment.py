@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -125,6 +125,8 @@ class Experiment:
     placement, plane, size_m, demo_index, obstacles, time_factor, settle_s :
         The setup options of ``RunSetup.resolve``.
     control_hz, ik, gains, feedforward, limiter : as ``sim.make_environment``.
+    on_reset : callable, optional
+        Places the scene's objects at each episode's start (``sim.make_environment``).
     limits : Limits, optional
         The arm's limits (default ``robots.limits.limits_of(robot)``): the limiter's, and every run's
         report against them.
@@ -140,7 +142,8 @@ class Experiment:
                  demo_index: int = 0, control_hz: float = 500.0, ik: str = "dls", settle_s: float = SETTLE_S,
                  gains: Gains = Gains(), feedforward: bool = True, fps: float = FPS,
                  obstacles: Sequence[Obstacle] = (), clearance: Clearance | str | None = "auto",
-                 time_factor: float = 1.0, limiter: bool = False, limits: Limits | None = None) -> None:
+                 time_factor: float = 1.0, limiter: bool = False, limits: Limits | None = None,
+                 on_reset: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None) -> None:
         if isinstance(robot, RunSetup):
             self.setup = robot
         else:
@@ -163,7 +166,8 @@ class Experiment:
             table = mujoco.mj_name2id(setup.robot.mj_model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM) >= 0
             clearance = Clearance() if (setup.obstacles or table) else None
         self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, gains=gains, feedforward=feedforward,
-                                            clearance=clearance, limiter=limiter, limits=self.limits)
+                                            clearance=clearance, limiter=limiter, limits=self.limits,
+                                            on_reset=on_reset)
         self.physics = ArmPhysics.from_robot(setup.robot)
         self.base = base_position(setup.robot)
         self.fps = float(fps)   # the rollouts record the full qpos at this video frame rate
@@ -326,7 +330,9 @@ class Experiment:
         """The experiment's settings, for the metrics JSON."""
         clearance = self.options["clearance"]
         opts = dict(self.options, gains=dataclasses.asdict(self.options["gains"]),
-                    clearance=None if clearance is None else dataclasses.asdict(clearance), limits=self.limits.name)
+                    clearance=None if clearance is None else dataclasses.asdict(clearance), limits=self.limits.name,
+                    on_reset=None if self.options["on_reset"] is None else getattr(self.options["on_reset"], "__name__",
+                                                                                      "objects placed"))
         return {"robot": self.robot.name, "ee_frame": self.robot.ee_frame, "demos": self.demos.name,
                 "demo_index": self.setup.demo_index, "duration_s": self.duration_s,
                 "placement": self.placement.to_dict(), "actuation": self.robot.actuation, **opts}

@@ -14,6 +14,7 @@ from lfd.errors import ConfigError
 from lfd.retime import check_speed
 from sim.media.camera import CameraSpec
 from sim.run.experiment import SCENARIOS, scenario
+from sim.run.tasks import TASKS
 from sim.scene.perturbations import Perturbation, Push
 
 #: the learners a job runs when it names none (and the panels of a side-by-side video)
@@ -64,7 +65,9 @@ class ArmJob:
     tracking learner's motion pass through those points (``lfd.via.through``). ``limiter`` controls
     through ``robots.controller.ArmController`` (the controller a real arm runs) with its jerk-limited
     limiter of the joint-velocity stream (``robots.limiter``); ``limits`` is a JSON file of the arm's
-    limits (``robots.limits.load_limits``; default the robot's own). ``obstacles`` are
+    limits (``robots.limits.load_limits``; default the robot's own). ``task`` runs a task with objects
+    (``sim.run.tasks``: ``pour``) and ``target`` puts its object (the bowl) there, m, robot base frame.
+    ``obstacles`` are
     ``lfd.obstacles.parse_obstacle`` texts, in task units; with
     ``arm_clearance`` (the default) the fields keep the tool point the hand's size
     (``sim.scene.collision.hand_margin_m``) more than each obstacle's margin away, and collision dampers in
@@ -110,6 +113,8 @@ class ArmJob:
     control_hz: float = 500.0
     limiter: bool = False
     limits: str | None = None
+    task: str | None = None
+    target: tuple[float, ...] | None = None
     iters: int | None = None
     quiet: bool = False
     command: tuple[str, ...] = field(default_factory=lambda: tuple(sys.argv))
@@ -142,6 +147,10 @@ class ArmJob:
         if self.goal is not None and (len(self.goal) not in (2, 3, 7) or not all(math.isfinite(v) for v in self.goal)):
             raise ConfigError(f"--goal must be 2 or 3 finite task coordinates or a pose of 7, got {list(self.goal)}")
         check_speed(self.speed)
+        if self.task is not None and self.task not in TASKS:
+            raise ConfigError(f"unknown task '{self.task}'; known: {', '.join(TASKS)}")
+        if self.target is not None and self.task is None:
+            raise ConfigError("--target places a task's object: give --task")
         if self.iters is not None and self.iters < 1:
             raise ConfigError(f"--iters must be a positive integer, got {self.iters}")
         self.push.check()

@@ -76,6 +76,11 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
             contacts = obstacle_contacts(plan.exp.robot, r.trace.q, r.trace.t, r.trace.mocap_pos)
             r.metrics.update(obstacle_contacts=contacts.contacts, obstacle_steps_in_contact=contacts.steps_in_contact,
                              obstacle_min_clearance_m=contacts.min_clearance_m)
+    if plan.task is not None:
+        model = plan.exp.physics.model.ptr
+        for r in {id(r): r for group in done.values() for r in group}.values():
+            r.metrics["task"] = plan.task.score(model, r.trace.frame_t, r.trace.frame_qpos)
+        _say_task(plan, [r for group in done.values() for r in group])
     _say_limits(plan, [r for group in done.values() for r in group])
     settings = {"seed": job.seed, "goal_motion": describe_goal_motion(job),
                 "goal": None if job.goal is None else list(job.goal)}
@@ -101,6 +106,17 @@ def execute(plan: JobPlan, run: PlannedRun, on_run: Callable[[RunResult], None] 
     if on_run is not None:
         on_run(result)
     return result
+
+
+def _say_task(plan: JobPlan, results: list[RunResult]) -> None:
+    """One line on stderr (unless quiet): the runs that did the task, and why the others did not."""
+    runs = list({id(r): r for r in results}.values())
+    if plan.job.quiet or not runs:
+        return
+    done = [r for r in runs if r.metrics["task"]["success"]]
+    each = "; ".join(f"{r.learner}/{r.scenario} {r.metrics['task']['in_bowl']} in the bowl"
+                     + ("" if r.metrics["task"]["success"] else f" ({r.metrics['task']['cause']})") for r in runs)
+    print(f"{plan.job.task}: {len(done)} of {len(runs)} runs succeeded: {each}", file=sys.stderr)
 
 
 def _say_limits(plan: JobPlan, results: list[RunResult]) -> None:

@@ -12,6 +12,7 @@ executes the plan.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 import time
 from dataclasses import dataclass
@@ -40,7 +41,9 @@ from sim.run.experiment import Experiment
 from sim.run.job import DEFAULT_LEARNERS, SIDE_BY_SIDE_LEARNERS, ArmJob
 from sim.run.job_files import JobFiles
 from sim.run.obstacle_runs import ObstacleRuns
+from sim.run.tasks import PourTask, plan_pour, with_scene
 from sim.scene.perturbations import Perturbation
+from sim.scene.pour import place_balls
 from sim.scene.setup import RunSetup
 
 GoalMotion = tuple[str, Any]
@@ -73,6 +76,7 @@ class JobPlan:
     files: JobFiles
     runs: list[PlannedRun]
     progress: bool                   # progress bars (a terminal, not quiet)
+    task: PourTask | None = None     # the task with objects (``sim.run.tasks``), scored per run
 
     def say(self, text: str) -> None:
         """``text`` on stderr unless the job is quiet."""
@@ -98,18 +102,22 @@ def plan_job(job: ArmJob) -> JobPlan:
     planned = list(job.learners) if job.learners else (["node"] if job.model else list(DEFAULT_LEARNERS))
     files = JobFiles(job, planned)                     # every output path checked before any work
     demos = _demos(job)
+    task = plan_pour(demos, job.target) if job.task == "pour" else None
+    if task is not None:   # the goal follows the bowl; the pose's orientation is the demos'
+        job = dataclasses.replace(job, goal=tuple(float(v) for v in task.goal), table=True)
     obstacles = [parse_obstacle(text, demos.dim) for text in job.obstacles]
     vias = [parse_via(text, demos.dim) for text in job.via]
     motion = goal_motion_of(job, demos.dim)
     goal = _goal(job, demos, obstacles)
-    exp = _experiment(job, demos, obstacles)
+    exp = _experiment(job, demos, obstacles, task)
     avoided = _avoided(job, exp, obstacles, goal, motion)
     _check_runs(job, exp, vias)
     fields, models, main = _fields(job, planned, demos, progress)
     fields = {name: _wrapped(name, f, job, demos, exp, motion, avoided, vias) for name, f in fields.items()}
     if main != planned:   # the model file named its own learner: the planned names follow it
         files = JobFiles(job, main)
-    return JobPlan(job, demos, obstacles, exp, fields, models, files, _runs(job, main, exp.placement.pose), progress)
+    return JobPlan(job, demos, obstacles, exp, fields, models, files, _runs(job, main, exp.placement.pose), progress,
+                   task)
 
 
 def _demos(job: ArmJob) -> DemoSet:
@@ -136,10 +144,13 @@ def _robot(job: ArmJob, demos: DemoSet) -> RobotModel:
                           f"cannot use ({e}); name the tool frame with --ee-frame") from None
 
 
-def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle]) -> Experiment:
+def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: PourTask | None = None) -> Experiment:
     """The job's experiment: the placement's reach checked on the scene with the obstacles (moving ones
-    move), before any training; among obstacles with ``ObstacleRuns``' settings."""
+    move), before any training; among obstacles with ``ObstacleRuns``' settings; a task's objects in
+    the scene, placed at every episode's start."""
     robot = _robot(job, demos)
+    if task is not None:
+        robot = with_scene(robot, task)
     if job.camera is not None:
         try:
             job.camera.check(robot.mj_model)
@@ -160,7 +171,8 @@ def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle]) -> Exper
         JointLimiter(limits_of(robot) if limits is None else limits, 1.0 / job.control_hz)
     return Experiment(setup, control_hz=job.control_hz, ik=job.ik, fps=job.fps, limiter=job.limiter,
                       gains=among.gains() if obstacles else Gains(), limits=limits,
-                      clearance="auto" if job.arm_clearance else None)
+                      clearance="auto" if job.arm_clearance else None,
+                      on_reset=None if task is None else functools.partial(place_balls, scene=task.scene))
 
 
 def _goal(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle]) -> tuple[np.ndarray, str]:

@@ -165,11 +165,12 @@ def obstacle_geom_ids(model: mujoco.MjModel) -> np.ndarray:
 
 
 def robot_geom_ids(model: mujoco.MjModel) -> np.ndarray:
-    """Collidable geoms on bodies other than the world body and the moving obstacles' mocap
-    bodies, shape (m,)."""
+    """Geoms that collide on the arm's bit (contype or conaffinity bit 0, the robot's and the table's)
+    on bodies other than the world body and the moving obstacles' mocap bodies, shape (m,). Objects
+    that collide only among themselves (``sim.scene.pour``: bit 1) are not the robot's."""
     return np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] != 0
                      and model.body_mocapid[model.geom_bodyid[g]] < 0
-                     and (model.geom_contype[g] or model.geom_conaffinity[g])], dtype=int)
+                     and (model.geom_contype[g] & 1 or model.geom_conaffinity[g] & 1)], dtype=int)
 
 
 def obstacle_contacts(robot: RobotModel, q: np.ndarray, t: np.ndarray | None = None,

@@ -3,6 +3,7 @@ predicate read from the physics state, and the learned pour on the Panda, its bo
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import mujoco
@@ -109,3 +110,23 @@ def test_a_pour_refuses_what_it_cannot_do(pouring: lfd.DemoSet) -> None:
                         name="held upright")
     with pytest.raises(ConfigError, match="do not pour"):
         plan_pour(still, None)
+
+
+def test_the_wilson_interval_and_a_resumed_benchmark(tmp_path: Path) -> None:
+    """Wilson's interval against its closed form at k = 0, n and a value from the literature
+    (8 of 10: [0.490, 0.943]); the benchmark reads back the episodes on file instead of running them."""
+    from sim.studies import pour_bench
+
+    assert pour_bench.wilson(0, 10)[0] == 0.0 and pour_bench.wilson(10, 10)[1] == 1.0
+    lo, hi = pour_bench.wilson(8, 10)
+    assert lo == pytest.approx(0.490, abs=1e-3) and hi == pytest.approx(0.943, abs=1e-3)
+    (tmp_path / "runs" / "tracking").mkdir(parents=True)
+    for k, rec in enumerate(({"pushed": False, "success": True, "cause": None, "in_bowl": 11},
+                             {"pushed": True, "success": False, "cause": "missed the bowl", "in_bowl": 3})):
+        # two episodes on file, one failed: nothing runs, the report counts them
+        (tmp_path / "runs" / "tracking" / f"{k}.json").write_text(json.dumps({"learner": "tracking", "episode": k,
+                                                                              **rec}))
+    code = pour_bench.main(["--episodes", "2", "--learners", "tracking", "--out", str(tmp_path / "runs"),
+                            "--report", str(tmp_path / "pour.md")])
+    text = (tmp_path / "pour.md").read_text()
+    assert code == 0 and "| tracking | all | 1 / 2 |" in text and "missed the bowl 1" in text

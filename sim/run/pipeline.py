@@ -79,7 +79,8 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
     if plan.task is not None:
         model = plan.exp.physics.model.ptr
         for r in {id(r): r for group in done.values() for r in group}.values():
-            r.metrics["task"] = plan.task.score(model, r.trace.frame_t, r.trace.frame_qpos)
+            r.metrics["task"] = plan.task.score(model, r.trace.frame_t, r.trace.frame_qpos,
+                                                r.metrics["final_goal_error_m"])
         _say_task(plan, [r for group in done.values() for r in group])
     _say_limits(plan, [r for group in done.values() for r in group])
     settings = {"seed": job.seed, "goal_motion": describe_goal_motion(job),

@@ -25,6 +25,8 @@ from sim.scene import pour
 TASKS: tuple[str, ...] = ("pour",)
 #: the base's radius on the table, m: a bowl nearer the base's axis would stand inside the arm
 BASE_CLEARANCE_M = 0.2
+#: a pour whose tool ends further than this from its goal did not reach its pouring pose, m
+STOPPED_SHORT_M = 0.005
 
 
 @dataclass(frozen=True)
@@ -40,9 +42,13 @@ class PourTask:
     motion_end_s: float
     scene: pour.PourScene = pour.PourScene()
 
-    def score(self, model: Any, frame_t: np.ndarray, frame_qpos: np.ndarray) -> dict[str, Any]:
-        """``sim.scene.pour.outcome`` of a run's recorded states, with the bowl's place."""
+    def score(self, model: Any, frame_t: np.ndarray, frame_qpos: np.ndarray, goal_error_m: float = 0.0
+              ) -> dict[str, Any]:
+        """``sim.scene.pour.outcome`` of a run's recorded states, with the bowl's place; a pour that
+        missed the bowl while its tool ended more than ``STOPPED_SHORT_M`` from its goal ``stopped short``."""
         out = pour.outcome(model, frame_t, frame_qpos, self.motion_end_s, self.axis, self.scene)
+        if out["cause"] == "missed the bowl" and goal_error_m > STOPPED_SHORT_M:
+            out["cause"] = "stopped short"
         out["bowl_m"] = self.bowl.tolist()
         return out
 

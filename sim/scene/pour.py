@@ -21,7 +21,8 @@ most tilted pose in a recorded pour), moved along the mouth's horizontal directi
 
 Success (``outcome``): every ball stays in the cup until its tilt first passes ``POUR_TILT_DEG``, and at
 least ``SUCCESS_BALLS`` rest inside the bowl ``SETTLE_AFTER_S`` after the motion ends. A failure is named
-in one word: ``spilled early``, ``missed the bowl``, ``not poured`` (the cup never tilted far enough).
+in one word: ``spilled early``, ``missed the bowl``, ``not poured`` (the cup never tilted far enough);
+``sim.run.tasks`` adds ``stopped short`` (the tool ended away from its pouring pose).
 """
 
 from __future__ import annotations

@@ -353,6 +353,7 @@ def test_demo_arm_checks_outputs_and_seed_first(demo_arm, tmp_path: Path,  # typ
         ([*run, "--limits", str(tmp_path / "nan.json")], "q_max must be 7 numbers, none NaN"),
         ([*run, "--limits", str(tmp_path / "none.json")], "limits file not found"),
         ([*run, "--task", "nope"], "unknown task 'nope'; known: pour"),
+        ([*run, "--held-out", "5"], "--held-out must name one of the 5 demos (0 to 4)"),
         ([*run, "--target", "0.4,0.1"], "--target places a task's object: give --task"),
         ([*run, "--task", "pour"], "--task pour needs demos of poses (a cup to tilt); spiral are positions"),
         ([*run, "--demos", "robottasks:pouring", "--task", "pour", "--target", "0.05,0"],

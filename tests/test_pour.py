@@ -126,7 +126,22 @@ def test_the_wilson_interval_and_a_resumed_benchmark(tmp_path: Path) -> None:
         # two episodes on file, one failed: nothing runs, the report counts them
         (tmp_path / "runs" / "tracking" / f"{k}.json").write_text(json.dumps({"learner": "tracking", "episode": k,
                                                                               **rec}))
-    code = pour_bench.main(["--episodes", "2", "--learners", "tracking", "--out", str(tmp_path / "runs"),
-                            "--report", str(tmp_path / "pour.md")])
+    code = pour_bench.main(["--episodes", "2", "--learners", "tracking", "--split", "in-sample",
+                            "--out", str(tmp_path / "runs"), "--report", str(tmp_path / "pour.md")])
     text = (tmp_path / "pour.md").read_text()
-    assert code == 0 and "| tracking | all | 1 / 2 |" in text and "missed the bowl 1" in text
+    assert code == 0 and "| in-sample | tracking | all | 1 / 2 |" in text and "missed the bowl 1" in text
+
+
+def test_a_held_out_job_trains_without_its_demo_and_starts_where_it_started(tmp_path: Path,
+                                                                              pouring: lfd.DemoSet) -> None:
+    """``--held-out 3``: the field is trained on the other eight demos (its chart is theirs), and the
+    run starts at demo 3's recorded start pose."""
+    from sim.run.plan import plan_job
+
+    plan = plan_job(sim.ArmJob(demos="robottasks:pouring", learners=("tracking",), held_out=3, task="pour",
+                               scenarios=("none",), videos=False, plots=False, quiet=True, out=str(tmp_path)))
+    eight = pouring.subset([i for i in range(9) if i != 3])
+    assert plan.fields["tracking"].chart.goal_rotation == pytest.approx(
+        lfd.pose.PoseChart.of(eight).goal_rotation)
+    start = plan.exp.placement.to_world(plan.exp.start[None])[0]
+    assert start == pytest.approx(pouring.x[3, 0], abs=1e-9)

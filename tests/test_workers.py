@@ -96,6 +96,25 @@ def _stat(pid: int) -> tuple[str, int] | None:
     return fields[0], int(fields[1])
 
 
+def _cpu_ticks(pid: int) -> int:
+    """The process's user + system CPU time in clock ticks (0 when it is gone)."""
+    try:
+        text = (PROC / str(pid) / "stat").read_text()
+    except OSError:
+        return 0
+    fields = text[text.rindex(")") + 2:].split()
+    return int(fields[11]) + int(fields[12])
+
+
+def _busy_workers(pid: int) -> list[int]:
+    """Pool workers below ``pid`` that used the CPU over the last 0.3 s: running a run, not waiting for
+    one (a worker killed between runs has nothing in flight to retry)."""
+    workers = _workers(pid)
+    before = {w: _cpu_ticks(w) for w in workers}
+    time.sleep(0.3)
+    return [w for w in workers if _cpu_ticks(w) > before[w]]
+
+
 def _cmdline(pid: int) -> str:
     try:
         return (PROC / str(pid) / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
@@ -169,7 +188,7 @@ def test_sweep_survives_a_killed_worker(sweep_env: dict[str, str], tmp_path: Pat
     proc = _start_sweep(tmp_path, sweep_env)
     try:
         _wait_for(lambda: list((tmp_path / "runs").glob("*.json")), 300, "the first record")
-        worker = _wait_for(lambda: _workers(proc.pid), 60, "a pool worker")[0]
+        worker = _wait_for(lambda: _busy_workers(proc.pid), 60, "a pool worker running a run")[0]
         os.kill(worker, signal.SIGKILL)
         out, err = proc.communicate(timeout=600)
     finally:

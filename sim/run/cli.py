@@ -209,6 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stream joint velocities as a real arm takes them: the robot's controller "
                         "(robots.controller) with an online jerk-limited limiter within its published limits; "
                         "use with --control-hz 1000 for the Franka's rate")
+    p.add_argument("--held-out", type=int, metavar="K",
+                   help="train on every demo but demo K and run from its start (a held-out run)")
     p.add_argument("--task", help="a task with objects: pour (a cup of balls in the hand, a bowl on the table; "
                                   "each run scored by whether 10 of 12 balls land in the bowl)")
     p.add_argument("--target", type=goal_vector, metavar="X,Y[,Z]",
@@ -240,7 +242,8 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
         push=PushSpec(args.push_force, args.push_start, args.push_duration, args.push_direction),
         obstacles=tuple(args.obstacle), goal=args.goal, goal_shift=args.goal_shift, goal_path=args.goal_path,
         arm_clearance=not args.no_arm_clearance, speed=args.speed, via=tuple(args.via), control_hz=args.control_hz,
-        limiter=args.limiter, limits=args.limits, task=args.task, target=args.target, iters=args.iters,
+        limiter=args.limiter, limits=args.limits, task=args.task, target=args.target,
+        held_out=args.held_out, iters=args.iters,
         quiet=args.quiet, command=tuple(command))
 
 

@@ -67,6 +67,7 @@ class ArmJob:
     limiter of the joint-velocity stream (``robots.limiter``); ``limits`` is a JSON file of the arm's
     limits (``robots.limits.load_limits``; default the robot's own). ``task`` runs a task with objects
     (``sim.run.tasks``: ``pour``) and ``target`` puts its object (the bowl) there, m, robot base frame.
+    ``held_out`` K trains every learner on every demo but demo K and runs from demo K's start.
     ``obstacles`` are
     ``lfd.obstacles.parse_obstacle`` texts, in task units; with
     ``arm_clearance`` (the default) the fields keep the tool point the hand's size
@@ -115,6 +116,7 @@ class ArmJob:
     limits: str | None = None
     task: str | None = None
     target: tuple[float, ...] | None = None
+    held_out: int | None = None
     iters: int | None = None
     quiet: bool = False
     command: tuple[str, ...] = field(default_factory=lambda: tuple(sys.argv))

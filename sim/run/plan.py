@@ -102,22 +102,33 @@ def plan_job(job: ArmJob) -> JobPlan:
     planned = list(job.learners) if job.learners else (["node"] if job.model else list(DEFAULT_LEARNERS))
     files = JobFiles(job, planned)                     # every output path checked before any work
     demos = _demos(job)
-    task = plan_pour(demos, job.target) if job.task == "pour" else None
+    trained_on = _held_out(job, demos)
+    task = plan_pour(trained_on, job.target) if job.task == "pour" else None
     if task is not None:   # the goal follows the bowl; the pose's orientation is the demos'
         job = dataclasses.replace(job, goal=tuple(float(v) for v in task.goal), table=True)
     obstacles = [parse_obstacle(text, demos.dim) for text in job.obstacles]
     vias = [parse_via(text, demos.dim) for text in job.via]
     motion = goal_motion_of(job, demos.dim)
     goal = _goal(job, demos, obstacles)
-    exp = _experiment(job, demos, obstacles, task)
+    exp = _experiment(job, demos, obstacles, task, trained_on)
     avoided = _avoided(job, exp, obstacles, goal, motion)
     _check_runs(job, exp, vias)
-    fields, models, main = _fields(job, planned, demos, progress)
+    fields, models, main = _fields(job, planned, trained_on, progress)
     fields = {name: _wrapped(name, f, job, demos, exp, motion, avoided, vias) for name, f in fields.items()}
     if main != planned:   # the model file named its own learner: the planned names follow it
         files = JobFiles(job, main)
     return JobPlan(job, demos, obstacles, exp, fields, models, files, _runs(job, main, exp.placement.pose), progress,
                    task)
+
+
+def _held_out(job: ArmJob, demos: DemoSet) -> DemoSet:
+    """The demos the learners train on: all, or all but ``job.held_out`` (checked against their number)."""
+    if job.held_out is None:
+        return demos
+    if not 0 <= job.held_out < demos.n_demos or demos.n_demos < 2:
+        raise ConfigError(f"--held-out must name one of the {demos.n_demos} demos (0 to {demos.n_demos - 1}) "
+                          f"and leave at least one, got {job.held_out}")
+    return demos.subset([i for i in range(demos.n_demos) if i != job.held_out])
 
 
 def _demos(job: ArmJob) -> DemoSet:
@@ -144,10 +155,12 @@ def _robot(job: ArmJob, demos: DemoSet) -> RobotModel:
                           f"cannot use ({e}); name the tool frame with --ee-frame") from None
 
 
-def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: PourTask | None = None) -> Experiment:
+def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: PourTask | None = None,
+                trained_on: DemoSet | None = None) -> Experiment:
     """The job's experiment: the placement's reach checked on the scene with the obstacles (moving ones
     move), before any training; among obstacles with ``ObstacleRuns``' settings; a task's objects in
-    the scene, placed at every episode's start."""
+    the scene, placed at every episode's start. Held out, the placement (and a pose task's chart) is the
+    training demos', and the run starts at the held-out demo's start."""
     robot = _robot(job, demos)
     if task is not None:
         robot = with_scene(robot, task)
@@ -157,9 +170,15 @@ def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: Po
         except ValueError as e:
             raise ConfigError(str(e)) from None
     among = ObstacleRuns(arm_clearance=job.arm_clearance)
-    setup = RunSetup.resolve(robot, demos, plane=job.plane, size_m=job.size_m, origin=job.origin, scale=job.scale,
-                             shift=job.shift, recorded=job.placement == "recorded", obstacles=obstacles,
-                             time_factor=among.time_factor if obstacles else 1.0, goal=job.goal)
+    options: dict[str, Any] = dict(plane=job.plane, size_m=job.size_m, origin=job.origin, scale=job.scale,
+                                   shift=job.shift, recorded=job.placement == "recorded", obstacles=obstacles,
+                                   time_factor=among.time_factor if obstacles else 1.0, goal=job.goal)
+    if trained_on is not None and trained_on is not demos:   # where the fields were learned
+        placement = RunSetup.resolve(robot, trained_on, **options).placement
+        setup = RunSetup.resolve(robot, demos, placement=placement, obstacles=obstacles, goal=job.goal,
+                                 time_factor=options["time_factor"], demo_index=job.held_out or 0)
+    else:
+        setup = RunSetup.resolve(robot, demos, **options)
     if job.speed != 1.0:   # the motion takes 1/S of the demos' time, then the same settling time
         setup = setup.retimed(job.speed)
     limits = None

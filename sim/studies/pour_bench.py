@@ -5,10 +5,11 @@ Episode k of a learner (seeded by k): the bowl placed uniformly within +-10 cm (
 place (``sim.run.tasks``: the goal follows it); the start moved up to 2 cm in a direction drawn from the
 seed (``StartOffset``); in odd episodes a 20 N push for 0.2 s at t = 5 s, while the cup is carried
 (``Push``, its direction drawn from the seed). A pour that missed the bowl with its tool away from
-its goal ``stopped short`` (``sim.run.tasks.STOPPED_SHORT_M``). Every learner is trained on all nine
-RoboTasks9 pouring demos (in-sample) and runs from demo 0's start. Each episode's record is written as it finishes
-(``out/pour_bench/<learner>/<k>.json``, atomically) and a rerun skips the episodes on file: a killed
-run resumes where it stopped.
+its goal ``stopped short`` (``sim.run.tasks.STOPPED_SHORT_M``). In-sample, every learner is trained
+on all nine RoboTasks9 pouring demos and runs from demo 0's start; held out, episode k leaves demo
+k mod 9 out of the training and runs from its start (``--held-out``). Each episode's record is written
+as it finishes (``out/pour_bench/<learner>/<k>.json`` in-sample, ``out/pour_bench/held_out/...``
+held out, atomically) and a rerun skips the episodes on file: a killed run resumes where it stopped.
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ LEARNERS: tuple[str, ...] = ("tracking", "contraction", "node", "stable_node")
 TARGET_SPREAD_M = 0.10
 START_OFFSET_M = 0.02
 PUSH_N, PUSH_S, PUSH_AT_S = 20.0, 0.2, 5.0
+N_DEMOS = 9   # RoboTasks9's pouring demos
+SPLITS: tuple[str, ...] = ("in-sample", "held-out")
 
 
 def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -51,15 +54,16 @@ def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def _episode(learner: str, k: int, nominal: np.ndarray, out: Path) -> dict[str, Any]:
-    """Episode ``k`` of ``learner`` (module docstring): its record."""
+def _episode(learner: str, k: int, nominal: np.ndarray, out: Path, held_out: bool) -> dict[str, Any]:
+    """Episode ``k`` of ``learner`` (module docstring), in-sample or ``held_out``: its record."""
     rng = np.random.default_rng(k)
     target = nominal[:2] + rng.uniform(-TARGET_SPREAD_M, TARGET_SPREAD_M, 2)
     offset = float(rng.uniform(0.0, START_OFFSET_M))
     pushed = k % 2 == 1
     plan = plan_job(sim.ArmJob(demos="robottasks:pouring", learners=(learner,), task="pour",
                                target=(float(target[0]), float(target[1])), scenarios=("none",), videos=False,
-                               plots=False, quiet=True, overwrite=True, out=str(out / "job")))
+                               plots=False, quiet=True, overwrite=True, out=str(out / "job"),
+                               held_out=k % N_DEMOS if held_out else None))
     assert plan.task is not None
     perts: tuple[Any, ...] = (StartOffset(distance_m=offset, seed=k),)
     if pushed:
@@ -69,7 +73,8 @@ def _episode(learner: str, k: int, nominal: np.ndarray, out: Path) -> dict[str, 
     goal_error = float(np.linalg.norm(trace.ee[-1] - trace.goal_world))
     score = plan.task.score(plan.exp.physics.model.ptr, trace.frame_t, trace.frame_qpos, goal_error)
     return {"learner": learner, "episode": k, "target_m": target.tolist(), "start_offset_m": offset,
-            "pushed": pushed, "wall_s": time.perf_counter() - t0, "goal_error_m": goal_error, **score}
+            "pushed": pushed, "held_out": k % N_DEMOS if held_out else None, "wall_s": time.perf_counter() - t0,
+            "goal_error_m": goal_error, **score}
 
 
 def _write(path: Path, blob: bytes) -> None:
@@ -82,6 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     p = OneLineParser(prog=PROG, description=" ".join((__doc__ or "").split("\n\n")[0].split()))
     p.add_argument("--episodes", type=int, default=20, help="episodes per learner (default 20)")
     p.add_argument("--learners", default=",".join(LEARNERS), help="comma-separated (default: all four)")
+    p.add_argument("--split", choices=(*SPLITS, "both"), default="both", help="which split (default both)")
     p.add_argument("--out", default="out/pour_bench", help="the episodes' records (default out/pour_bench)")
     p.add_argument("--report", default="reports/pour.md", help="the report (default reports/pour.md)")
     args = p.parse_args(argv)
@@ -89,27 +95,30 @@ def main(argv: list[str] | None = None) -> int:
     if not 1 <= args.episodes <= 1000 or any(name not in LEARNERS for name in learners):
         return fail(PROG, f"--episodes must be 1 to 1000 and --learners among {', '.join(LEARNERS)}")
     out, report = Path(args.out), Path(args.report)
-    records: dict[str, list[dict[str, Any]]] = {}
+    splits = SPLITS if args.split == "both" else (args.split,)
+    records: dict[tuple[str, str], list[dict[str, Any]]] = {}
     try:
         check_writable(report)
         import lfd
         nominal = plan_pour(lfd.load_demos("robottasks:pouring"), None).nominal
-        for learner in learners:
-            records[learner] = []
-            for k in range(args.episodes):
-                path = out / learner / f"{k}.json"
-                if path.is_file():
-                    rec = json.loads(path.read_text())
-                else:
-                    rec = _episode(learner, k, nominal, out / learner)
-                    path.parent.mkdir(parents=True, exist_ok=True)
-                    _write(path, json.dumps(rec).encode())
-                records[learner].append(rec)
-            print(f"{learner}: {sum(r['success'] for r in records[learner])} of {args.episodes}", flush=True)
+        for split in splits:
+            for learner in learners:
+                folder = out / learner if split == "in-sample" else out / "held_out" / learner
+                recs = records[(split, learner)] = []
+                for k in range(args.episodes):
+                    path = folder / f"{k}.json"
+                    if path.is_file():
+                        rec = json.loads(path.read_text())
+                    else:
+                        rec = _episode(learner, k, nominal, folder, split == "held-out")
+                        path.parent.mkdir(parents=True, exist_ok=True)
+                        _write(path, json.dumps(rec).encode())
+                    recs.append(rec)
+                print(f"{split} {learner}: {sum(r['success'] for r in recs)} of {args.episodes}", flush=True)
     except (LfdError, SimError, RobotError, OSError) as e:
         return fail(PROG, str(e))
     rows = []
-    for learner, recs in records.items():
+    for (split, learner), recs in records.items():
         for label, chosen in (("all", recs), ("unpushed", [r for r in recs if not r["pushed"]]),
                               ("pushed", [r for r in recs if r["pushed"]])):
             k, n = sum(r["success"] for r in chosen), len(chosen)
@@ -120,18 +129,19 @@ def main(argv: list[str] | None = None) -> int:
                     causes[r["cause"]] = causes.get(r["cause"], 0) + 1
             why = ", ".join(f"{c} {m}" for c, m in sorted(causes.items())) or "-"
             balls = np.mean([r["in_bowl"] for r in chosen]) if chosen else float("nan")
-            rows.append(f"| {learner} | {label} | {k} / {n} | {k / max(n, 1):.2f} [{lo:.2f}, {hi:.2f}] | "
+            rows.append(f"| {split} | {learner} | {label} | {k} / {n} | {k / max(n, 1):.2f} [{lo:.2f}, {hi:.2f}] | "
                         f"{balls:.1f} | {why} |")
     text = "\n".join([
-        "# The learned pour: success over randomized episodes (in-sample)", "",
+        "# The learned pour: success over randomized episodes, in-sample and held out", "",
         "Protocol: not a benchmark suite's; `python scripts/pour_bench.py` (sim.studies.pour_bench), 2-core machine.",
-        "RoboTasks9 pouring, 9 demos, every learner trained on all of them; the Panda (torque control, 500 Hz)",
+        "RoboTasks9 pouring, 9 demos: in-sample every learner is trained on all of them and runs from demo 0's",
+        "start; held out, episode k trains on all but demo k mod 9 and runs from its start. The Panda (torque, 500 Hz)",
         "holds a cup (7.8 cm across) with 12 balls of 1 cm radius; the bowl (14.8 cm across) stands within",
         "+-10 cm of its nominal place, the start moved up to 2 cm, and every other episode is pushed with",
         "20 N for 0.2 s at t = 5 s. Success: no ball leaves the cup before it tilts past 60 deg, and at least",
         "10 of 12 rest in the bowl 1 s after the motion ends. Rates with 95% Wilson intervals.", "",
-        "| learner | episodes | successes | rate [95% CI] | balls in the bowl, mean | failures |",
-        "|---|---|---|---|---|---|", *rows, ""])
+        "| split | learner | episodes | successes | rate [95% CI] | balls in the bowl, mean | failures |",
+        "|---|---|---|---|---|---|---|", *rows, ""])
     atomic_write(report, lambda f: f.write(text.encode()))
     print(f"wrote {report}")
     return 0

@@ -13,9 +13,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pinocchio as pin
 
 import lfd
+from lfd.rotations import quaternion_matrices
 from robots.controller import ArmController
 from robots.ik import solve_pose_ik
 from robots.limits import PANDA
@@ -31,8 +31,7 @@ frame = TaskFrame(origin=np.zeros(3), axes=np.eye(3), scale=1.0, chart=field.cha
 dt, duration = 1e-3, float(demos.t[0, -1]) + 1.5
 ctl = ArmController(arm, frame, dt, limits=PANDA)
 
-w, x, y, z = demos.q[0, 0]
-p0, R0 = demos.x[0, 0], pin.Quaternion(w, x, y, z).toRotationMatrix()
+p0, R0 = demos.x[0, 0], quaternion_matrices(demos.q[0, 0])
 q, _, _ = solve_pose_ik(arm, p0, R0, q0=arm.q_home, posture=0.1)
 dq = np.zeros(7)
 ctl.start(field.runner(frame.point(p0, R0), dt))

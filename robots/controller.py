@@ -13,10 +13,8 @@ One control step k at time t_k (the loop's, on hardware or in ``sim``):
 4. the limiter: qdot_cmd = L(qdot_IK), the next command of an online jerk-limited stream within the
    arm's velocity, acceleration and jerk limits (``robots.limiter``; None: qdot_IK itself). Where
    the time t advanced by more than one step since the last call (a hardware loop that missed
-   cycles), the policy is first stepped once per missed step at the measured point (a runner that
-   advances its phase per call keeps up with the time) and the limiter's stream extrapolated over
-   them at its last acceleration, as the Franka's FCI extrapolates missed commands
-   (``JointLimiter.extrapolate``).
+   cycles), the policy is first stepped once per missed step at the measured point, so that a
+   runner that advances its phase per call keeps up with the time.
 
 ``ArmController(q, dq, t)`` runs the four; ``point(q)`` (1) and ``command(v)`` (3-4) are its two halves,
 which ``sim``'s control step calls around the field so that a simulated run records x and v. The
@@ -80,8 +78,6 @@ class ArmController:
 
     def __init__(self, arm: ArmModel, frame: TaskFrame, dt: float, limits: Limits | None = None,
                  fraction: float = 0.95, guard: Guard | None = None) -> None:
-        if frame.dim == 2 and arm.planar is False and frame.axes.shape[1] != 2:
-            raise RobotError("a 2-D task needs a frame with 2 axes")
         if arm.planar and frame.dim != 2:
             raise RobotError(f"robot '{arm.name}' moves in a plane; it cannot follow a {frame.dim}-D field")
         self.arm, self.frame, self.dt = arm, frame, float(dt)

@@ -105,16 +105,6 @@ class JointLimiter:
         self._last = (v, target)
         return v
 
-    def extrapolate(self, cycles: int) -> None:
-        """Advance the stream over ``cycles`` control steps that sent no command, as the Franka's FCI
-        does for missed packets: the velocity integrated at the last acceleration, held constant
-        (saturated at the velocity bound). The next command then continues from where the robot's
-        own extrapolated command is, rather than jumping back to where this one left off."""
-        inp = self._inp
-        a = np.array(inp.current_acceleration)
-        v = np.array(inp.current_velocity) + cycles * self.dt * a
-        inp.current_velocity = np.minimum(np.maximum(v, self._v_min), self.v_max).tolist()
-
     @property
     def acted(self) -> bool:
         """Whether the last command differs from its target by more than 1e-9 rad/s on any joint

@@ -13,6 +13,7 @@ import pytest
 import lfd
 import sim
 from lfd.errors import ConfigError
+from lfd.rotations import quaternion_matrices
 from robots import load_robot, solve_pose_ik
 from sim.run.tasks import plan_pour
 from sim.scene import pour
@@ -28,7 +29,7 @@ def scene_model(pouring: lfd.DemoSet) -> tuple[mujoco.MjModel, np.ndarray, np.nd
     """The scene, the cup's axis and the arm's qpos with the tool at the demos' start (the cup upright)."""
     task = plan_pour(pouring, None)
     robot = pour.build(load_robot("panda", actuation="torque", table=True), task.axis, task.bowl)
-    q, _, _ = solve_pose_ik(robot, pouring.x[0, 0], pour.tool_pose(pouring.q[0, 0]), q0=robot.q_home)
+    q, _, _ = solve_pose_ik(robot, pouring.x[0, 0], quaternion_matrices(pouring.q[0, 0]), q0=robot.q_home)
     qpos = robot.mj_model.qpos0.copy()
     qpos[robot.mj_qpos_adr] = q
     return robot.mj_model, task.axis, qpos

@@ -86,24 +86,25 @@ def test_only_the_runs_of_the_dead_worker_count_a_try() -> None:
 
 @pytest.mark.slow
 # ---------------------------------------------------------------- killed sweeps and benchmarks
-def _stat(pid: int) -> tuple[str, int] | None:
-    """(state, parent pid) of a process from /proc, None when it is gone."""
+def _stat_fields(pid: int) -> list[str] | None:
+    """The fields of /proc/<pid>/stat after the command name (state first), None when it is gone."""
     try:
         text = (PROC / str(pid) / "stat").read_text()
     except OSError:
         return None
-    fields = text[text.rindex(")") + 2:].split()
-    return fields[0], int(fields[1])
+    return text[text.rindex(")") + 2:].split()
+
+
+def _stat(pid: int) -> tuple[str, int] | None:
+    """(state, parent pid) of a process from /proc, None when it is gone."""
+    fields = _stat_fields(pid)
+    return None if fields is None else (fields[0], int(fields[1]))
 
 
 def _cpu_ticks(pid: int) -> int:
     """The process's user + system CPU time in clock ticks (0 when it is gone)."""
-    try:
-        text = (PROC / str(pid) / "stat").read_text()
-    except OSError:
-        return 0
-    fields = text[text.rindex(")") + 2:].split()
-    return int(fields[11]) + int(fields[12])
+    fields = _stat_fields(pid)
+    return 0 if fields is None else int(fields[11]) + int(fields[12])
 
 
 def _busy_workers(pid: int) -> list[int]:

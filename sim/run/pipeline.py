@@ -71,18 +71,19 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
                                                                                              run.scenario)]
         done[run.group].append(same[0] if same else execute(plan, run, on_run))
     t_sim = time.perf_counter() - t_sim
+    unique = list({id(r): r for group in done.values() for r in group}.values())   # a shared run once
     if plan.obstacles:
-        for r in {id(r): r for group in done.values() for r in group}.values():
+        for r in unique:
             contacts = obstacle_contacts(plan.exp.robot, r.trace.q, r.trace.t, r.trace.mocap_pos)
             r.metrics.update(obstacle_contacts=contacts.contacts, obstacle_steps_in_contact=contacts.steps_in_contact,
                              obstacle_min_clearance_m=contacts.min_clearance_m)
     if plan.task is not None:
         model = plan.exp.physics.model.ptr
-        for r in {id(r): r for group in done.values() for r in group}.values():
+        for r in unique:
             r.metrics["task"] = plan.task.score(model, r.trace.frame_t, r.trace.frame_qpos,
                                                 r.metrics["final_goal_error_m"])
-        _say_task(plan, [r for group in done.values() for r in group])
-    _say_limits(plan, [r for group in done.values() for r in group])
+        _say_task(plan, unique)
+    _say_limits(plan, unique)
     settings = {"seed": job.seed, "goal_motion": describe_goal_motion(job),
                 "goal": None if job.goal is None else list(job.goal)}
     files = plan.files
@@ -109,9 +110,9 @@ def execute(plan: JobPlan, run: PlannedRun, on_run: Callable[[RunResult], None] 
     return result
 
 
-def _say_task(plan: JobPlan, results: list[RunResult]) -> None:
-    """One line on stderr (unless quiet): the runs that did the task, and why the others did not."""
-    runs = list({id(r): r for r in results}.values())
+def _say_task(plan: JobPlan, runs: list[RunResult]) -> None:
+    """One line on stderr (unless quiet): of ``runs`` (each once), those that did the task, and why the
+    others did not."""
     if plan.job.quiet or not runs:
         return
     done = [r for r in runs if r.metrics["task"]["success"]]
@@ -120,11 +121,10 @@ def _say_task(plan: JobPlan, results: list[RunResult]) -> None:
     print(f"{plan.job.task}: {len(done)} of {len(runs)} runs succeeded: {each}", file=sys.stderr)
 
 
-def _say_limits(plan: JobPlan, results: list[RunResult]) -> None:
-    """One line on stderr (unless quiet) when runs went over the arm's published limits
+def _say_limits(plan: JobPlan, runs: list[RunResult]) -> None:
+    """One line on stderr (unless quiet) when ``runs`` (each once) went over the arm's published limits
     (``robots.limits``; metrics.json ``motion_limits`` holds each run's peaks, and with ``--limiter``
     ``command_limits`` those of the command stream), or when the limiter held the stream back."""
-    runs = list({id(r): r for r in results}.values())
     key = "command_limits" if runs and "command_limits" in runs[0].metrics else "motion_limits"
     over = [r for r in runs if r.metrics[key]["violations"]]
     if plan.job.quiet:

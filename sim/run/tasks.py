@@ -18,6 +18,7 @@ import numpy as np
 
 from lfd.demos import DemoSet
 from lfd.errors import ConfigError
+from lfd.rotations import quaternion_matrices
 from robots import RobotModel
 from sim.scene import pour
 
@@ -59,8 +60,8 @@ def plan_pour(demos: DemoSet, target: tuple[float, ...] | None) -> PourTask:
     if not demos.has_orientation:
         raise ConfigError(f"--task pour needs demos of poses (a cup to tilt); {demos.name} are positions")
     assert demos.q is not None and demos.goal_q is not None   # demos with orientation
-    axis = pour.cup_axis(np.array([pour.tool_pose(q) for q in demos.q[:, 0]]))
-    end_rot = pour.tool_pose(demos.goal_q)
+    axis = pour.cup_axis(quaternion_matrices(demos.q[:, 0]))
+    end_rot = quaternion_matrices(demos.goal_q)
     tilt = pour.tilt_deg(end_rot, axis)
     if tilt < pour.POUR_TILT_DEG:
         raise ConfigError(f"--task pour: the demos {demos.name} tilt their cup by {tilt:.0f} deg at their end, "

@@ -35,7 +35,6 @@ from typing import Any
 
 import mujoco
 import numpy as np
-import pinocchio as pin
 
 from robots import RobotModel
 from sim.errors import SimError
@@ -250,7 +249,7 @@ def outcome(model: mujoco.MjModel, frame_t: np.ndarray, frame_qpos: np.ndarray, 
     data = mujoco.MjData(model)
     cup, bowl = model.body(_CUP).id, model.body(_BOWL).id
     adr = [int(model.joint(f"{_BALL}{i}").qposadr[0]) for i in range(scene.n_balls)]
-    cup_axis_local = np.array([0.0, 0.0, 1.0])
+    cup_z = np.array([0.0, 0.0, 1.0])   # the opening, in the cup body's frame
     poured_at, in_cup_before, max_tilt = None, scene.n_balls, 0.0
     count_at = motion_end_s + SETTLE_AFTER_S
     k_count = int(np.argmin(np.abs(frame_t - count_at)))
@@ -259,7 +258,7 @@ def outcome(model: mujoco.MjModel, frame_t: np.ndarray, frame_qpos: np.ndarray, 
         data.qpos[:] = qpos
         mujoco.mj_kinematics(model, data)
         rot = data.xmat[cup].reshape(3, 3)
-        tilt = float(np.degrees(np.arccos(np.clip((rot @ cup_axis_local)[2], -1.0, 1.0))))
+        tilt = tilt_deg(rot, cup_z)
         max_tilt = max(max_tilt, tilt)
         balls = np.array([qpos[a:a + 3] for a in adr])
         if poured_at is None:
@@ -281,9 +280,3 @@ def outcome(model: mujoco.MjModel, frame_t: np.ndarray, frame_qpos: np.ndarray, 
     return {"in_bowl": in_bowl, "in_cup_before_pour": in_cup_before, "max_tilt_deg": max_tilt,
             "poured_at_s": poured_at, "counted_at_s": float(frame_t[k_count]), "success": bool(success),
             "cause": cause}
-
-
-def tool_pose(rotation_quat_wxyz: np.ndarray) -> np.ndarray:
-    """A (w, x, y, z) quaternion as a rotation matrix (3, 3)."""
-    w, x, y, z = (float(v) for v in rotation_quat_wxyz)
-    return np.asarray(pin.Quaternion(w, x, y, z).toRotationMatrix())

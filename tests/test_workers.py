@@ -28,6 +28,7 @@ PYTHON = sys.executable
 SWEEP_ARGS = ["--robots", "planar", "--learners", "node", "--directions", "8", "--forces", "20", "--offsets",
               "0.05", "--kinds", "push,offset", "--option", "node.iterations=30", "--option", "node.hidden=[16,16]"]
 SWEEP_RUNS = 16
+LONG_DIRECTIONS = 32
 PROC = Path("/proc")
 needs_proc = pytest.mark.skipif(not (PROC / "self" / "stat").exists(), reason="reads /proc (Linux)")
 
@@ -84,7 +85,6 @@ def test_only_the_runs_of_the_dead_worker_count_a_try() -> None:
     assert _blamed([1, 2], started, {102: -signal.SIGTERM}) == [1]      # an exit code unknown: blamed
 
 
-@pytest.mark.slow
 # ---------------------------------------------------------------- killed sweeps and benchmarks
 def _stat_fields(pid: int) -> list[str] | None:
     """The fields of /proc/<pid>/stat after the command name (state first), None when it is gone."""
@@ -186,17 +186,24 @@ def _start_sweep(out: Path, env: dict[str, str], *extra: str) -> subprocess.Pope
 
 @needs_proc
 def test_sweep_survives_a_killed_worker(sweep_env: dict[str, str], tmp_path: Path) -> None:
-    proc = _start_sweep(tmp_path, sweep_env)
+    runs = 2 * LONG_DIRECTIONS          # a push and an offset per direction: longer than a poll takes to see one
+    proc = _start_sweep(tmp_path, sweep_env, "--directions", str(LONG_DIRECTIONS))
     try:
-        _wait_for(lambda: list((tmp_path / "runs").glob("*.json")), 300, "the first record")
-        worker = _wait_for(lambda: _busy_workers(proc.pid), 60, "a pool worker running a run")[0]
+        def busy() -> list[int]:
+            if proc.poll() is not None:
+                done = len(list((tmp_path / "runs").glob("*.json")))
+                raise AssertionError(f"the sweep ended ({proc.returncode}, {done} records) before a worker was seen busy")
+            return _busy_workers(proc.pid)
+
+        _wait_for(lambda: list((tmp_path / "runs").glob("*.json")), 300, "the first record")   # workers started
+        worker = _wait_for(busy, 120, "a pool worker running a run")[0]
         os.kill(worker, signal.SIGKILL)
         out, err = proc.communicate(timeout=600)
     finally:
         proc.kill()
     assert proc.returncode == 0, err
     records = [json.loads(p.read_text()) for p in sorted((tmp_path / "runs").glob("*.json"))]
-    assert len(records) == SWEEP_RUNS and f"{SWEEP_RUNS}/{SWEEP_RUNS} succeeded" in out
+    assert len(records) == runs and f"{runs}/{runs} succeeded" in out
     attempts = sorted(r["attempts"] for r in records)
     assert attempts[-1] == 2 and attempts[0] == 1, attempts          # the retry is in the records
     assert all(r["error"] is None and r["metrics"] for r in records)

@@ -83,8 +83,8 @@ def test_pose_job_writes_orientation_metrics_and_video(tmp_path) -> None:
     frames = [np.frombuffer(f, np.uint8).reshape(meta["size"][1], meta["size"][0], 3) for f in reader]
     # the live tool frame: pure red, green and blue axis pixels are drawn in every frame
     for f in (frames[0], frames[-1]):
-        assert np.count_nonzero((f[..., 0] > 180) & (f[..., 1] < 80) & (f[..., 2] < 80)) > 10
-        assert np.count_nonzero((f[..., 2] > 180) & (f[..., 0] < 90) & (f[..., 1] < 130)) > 10
+        assert np.count_nonzero((f[..., 0] > 180) & (f[..., 1] < 80) & (f[..., 2] < 80)) > 5
+        assert np.count_nonzero((f[..., 2] > 180) & (f[..., 0] < 90) & (f[..., 1] < 130)) > 5
 
 
 def test_dm_env_steps_a_pose_field(pouring: DemoSet) -> None:

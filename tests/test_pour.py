@@ -116,21 +116,24 @@ def test_a_pour_refuses_what_it_cannot_do(pouring: lfd.DemoSet) -> None:
 def test_the_wilson_interval_and_a_resumed_benchmark(tmp_path: Path) -> None:
     """Wilson's interval against its closed form at k = 0, n and a value from the literature
     (8 of 10: [0.490, 0.943]); the benchmark reads back the episodes on file instead of running them."""
-    from sim.studies import pour_bench
+    from sim.studies import task_bench
 
-    assert pour_bench.wilson(0, 10)[0] == 0.0 and pour_bench.wilson(10, 10)[1] == 1.0
-    lo, hi = pour_bench.wilson(8, 10)
+    assert task_bench.wilson(0, 10)[0] == 0.0 and task_bench.wilson(10, 10)[1] == 1.0
+    lo, hi = task_bench.wilson(8, 10)
     assert lo == pytest.approx(0.490, abs=1e-3) and hi == pytest.approx(0.943, abs=1e-3)
     (tmp_path / "runs" / "tracking").mkdir(parents=True)
     for k, rec in enumerate(({"pushed": False, "success": True, "cause": None, "in_bowl": 11},
                              {"pushed": True, "success": False, "cause": "missed the bowl", "in_bowl": 3})):
         # two episodes on file, one failed: nothing runs, the report counts them
-        (tmp_path / "runs" / "tracking" / f"{k}.json").write_text(json.dumps({"learner": "tracking", "episode": k,
-                                                                              **rec}))
-    code = pour_bench.main(["--episodes", "2", "--learners", "tracking", "--split", "in-sample",
+        (tmp_path / "runs" / "tracking" / f"{k}.json").write_text(json.dumps(
+            {"learner": "tracking", "episode": k, "target_m": [0.4, -0.3], "held_out": None, "goal_error_m": 0.001,
+             **rec}))
+    code = task_bench.main(["--episodes", "2", "--learners", "tracking", "--split", "in-sample", "--no-videos",
                             "--out", str(tmp_path / "runs"), "--report", str(tmp_path / "pour.md")])
     text = (tmp_path / "pour.md").read_text()
     assert code == 0 and "| in-sample | tracking | all | 1 / 2 |" in text and "missed the bowl 1" in text
+    page = (tmp_path / "runs" / "index.html").read_text()
+    assert "tracking, in-sample episode 1 (object at 0.400, -0.300 m; pushed): missed the bowl; 3 of 12 balls" in page
 
 
 def test_a_held_out_job_trains_without_its_demo_and_starts_where_it_started(tmp_path: Path,

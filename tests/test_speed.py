@@ -26,6 +26,7 @@ QUICK: dict[str, tuple[list[str], str]] = {
     "obstacles": (["--shapes", ""], rf"^3-D NODE field +bare median +{NUMBER} us .* ratio {NUMBER}x"),
     "arm-clearance": ([], rf"^whole arm +{NUMBER} +{NUMBER} +\d+$"),
     "render": (["--robot", "planar", "--cases", "single"], rf"^single 64x48 +{NUMBER} +{NUMBER} +{NUMBER}"),
+    "tasks": ([], rf"^place +objects +{NUMBER} us +{NUMBER} us +-?{NUMBER} us +-?{NUMBER} +{NUMBER}$"),
 }
 
 

@@ -71,14 +71,16 @@ def test_video_size_frames_rate_motion_legend_and_path_width(exp, pushed, tmp_pa
     assert (trace_last & ~legend).sum() > 60 > (trace_first & ~legend).sum()
     ys, xs = np.nonzero(trace_last & ~legend)
     region = (slice(ys.min(), ys.max() + 1), slice(xs.min(), xs.max() + 1))
-    assert np.abs(last[region] - first[region]).mean() > 5
+    assert np.abs(last[region] - first[region]).mean() > 3   # a still frame: 0
     # every legend colour is drawn in the legend box
     for rgb in (overlay.DEMO_RGB, overlay.FIELD_RGB, overlay.TRACE_RGB, overlay.GOAL_RGB):
         assert near(frames[-1][:90, :150], rgb, 60).sum() >= 8, rgb
-    # the demonstration spans at least 40% of the frame's width
+    # the demonstration lies inside the frame, clear of its edges, and spans at least 8% of its width: the
+    # camera keeps the whole planar arm (three times the spiral's size) in view too
     demo = near(frames[-1], overlay.DEMO_RGB) & ~legend
-    cols = np.nonzero(demo.sum(0) >= 1)[0]
-    assert (cols.max() - cols.min()) / 320 >= 0.4
+    cols, rows = np.nonzero(demo.sum(0) >= 1)[0], np.nonzero(demo.sum(1) >= 1)[0]
+    assert (cols.max() - cols.min()) / 320 >= 0.08 and cols.min() > 16 and cols.max() < 304
+    assert rows.min() > 12 and rows.max() < 228
 
 
 def test_push_arrow_shows_only_while_the_push_acts(exp, pushed, tmp_path):

@@ -192,7 +192,8 @@ def test_sweep_survives_a_killed_worker(sweep_env: dict[str, str], tmp_path: Pat
         def busy() -> list[int]:
             if proc.poll() is not None:
                 done = len(list((tmp_path / "runs").glob("*.json")))
-                raise AssertionError(f"the sweep ended ({proc.returncode}, {done} records) before a worker was seen busy")
+                raise AssertionError(f"the sweep ended ({proc.returncode}, {done} records) before a worker "
+                                     "was seen busy")
             return _busy_workers(proc.pid)
 
         _wait_for(lambda: list((tmp_path / "runs").glob("*.json")), 300, "the first record")   # workers started

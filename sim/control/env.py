@@ -34,6 +34,7 @@ from lfd.field import Field
 from robots import RobotModel, load_robot
 from robots.limits import Limits
 from sim.control.controller import Gains
+from sim.control.object_task import ObjectTask, SuccessCheck
 from sim.control.task import ArmPhysics, FieldTrackingTask
 from sim.errors import SimError
 from sim.scene.collision import Clearance
@@ -213,7 +214,8 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
                      feedforward: bool = True, physics: ArmPhysics | None = None, dynamics: str = "mujoco",
                      clearance: Clearance | None = None, goal: np.ndarray | None = None,
                      limiter: bool = False, limits: Limits | None = None,
-                     on_reset: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None) -> FieldEnvironment:
+                     on_reset: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None,
+                     success: SuccessCheck | None = None) -> FieldEnvironment:
     """A dm_control Environment of the arm following task velocities (``sim.control.task``), whose ``step``
     is the lean one of the module docstring.
 
@@ -248,6 +250,8 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
         and ``learner_field.toward(goal)`` for ``field_velocity``. A position task takes a new goal
         for each later episode from ``env.task.set_goal`` (read at the reset).
     on_reset : the scene's objects placed at each episode's start (``FieldTrackingTask``).
+    success : a task's success predicate: the reward is it, and the episode ends where it holds
+        (``sim.control.object_task.ObjectTask``).
     limiter, limits : control through ``robots.controller.ArmController`` and its jerk-limited limiter,
         within ``limits`` (default the robot's; ``FieldTrackingTask``).
     Others as ``sim.control.task.FieldTrackingTask`` and ``sim.control.controller.FieldController``.
@@ -276,9 +280,11 @@ def make_environment(robot: str | RobotModel | RunSetup, demos: str | DemoSet | 
     if control_hz > 0 and 1.0 / control_hz < physics.model.opt.timestep - 1e-12:
         physics.model.opt.timestep = 1.0 / control_hz   # a control rate above the physics rate: physics at it
     control_dt = _control_dt(control_hz, physics.model.opt.timestep)
-    task = FieldTrackingTask(setup, control_dt, goal=target, ik=ik, perturbations=perturbations, gains=gains,
-                             feedforward=feedforward, mj_model=physics.model.ptr, start_radius=start_radius,
-                             seed=seed, field=learner_field, dynamics=dynamics, clearance=clearance,
-                             limiter=limiter, limits=limits, on_reset=on_reset)
+    options: dict[str, Any] = dict(
+        goal=target, ik=ik, perturbations=perturbations, gains=gains, feedforward=feedforward,
+        mj_model=physics.model.ptr, start_radius=start_radius, seed=seed, field=learner_field, dynamics=dynamics,
+        clearance=clearance, limiter=limiter, limits=limits, on_reset=on_reset)
+    task = FieldTrackingTask(setup, control_dt, **options) if success is None else \
+        ObjectTask(setup, control_dt, success=success, **options)
     return FieldEnvironment(physics, task, time_limit=setup.duration_s, control_timestep=control_dt,
                             legacy_step=False)

@@ -9,10 +9,11 @@ Every control step k (t_k = k dt), on the raw MuJoCo model and data:
 2. ``field_point``: the measured task point x = A^T (p - o) / s, minus a goal shift dg
    (``sim.scene.perturbations.GoalShift``), where the field is evaluated;
 3. ``command(v)``: the task velocity v -> twist -> differential IK (with its safety rows) ->
-   actuator command (``FieldController.fast_command``), then the step's perturbations (push,
+   actuator command (``FieldController.fast_command``), then the step's perturbations (push, release,
    moving obstacles, joint-velocity noise);
 4. ``end``: ``mj_step2`` and the remaining physics steps (or ``mj_step`` without the split);
-   inside a ``Hold`` window the arm joints are then clamped at rest where the hold began.
+   inside a ``Hold`` window the arm joints are then clamped at rest where the hold began. A load held
+   until a ``Release`` (its weld) is fed forward until then, Eq. (H1) of docs/equations.md.
 
 With an ``ArmController`` (``robots.controller``: the controller a real arm runs, MuJoCo-free) the
 step streams joint velocities as a real arm takes them: ``begin`` measures q and runs its step 1
@@ -20,8 +21,8 @@ step streams joint velocities as a real arm takes them: ``begin`` measures q and
 (twist, IK with the whole-arm guard, the jerk-limited limiter) and the actuators track the limited
 joint-velocity command (``FieldController.actuate``: the servos' feed-forward, or computed torque).
 
-The lean loop (``sim.control.loop``), the dm_env environment's step (``sim.control.env``) and dm_control's generic
-step (``FieldTrackingTask.before_step``) all call these; the loop only adds recording.
+The lean loop (``sim.control.loop``), the dm_env environment's step and dm_control's generic step
+(``FieldTrackingTask.before_step``) all call these; the loop only adds recording.
 """
 
 from __future__ import annotations
@@ -37,7 +38,9 @@ from robots.controller import ArmController
 from sim.control.controller import FieldController
 from sim.scene.perturbations import Schedule
 
-_step1, _step2, _mj_step, _forward = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step, mujoco.mj_forward
+#: the physics calls of a step, looked up at each call (``sim.speed.tasks`` times them inside the step)
+physics_step1, physics_step2, physics_step = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_step
+_forward = mujoco.mj_forward
 
 
 def contiguous(a: np.ndarray, idx: np.ndarray) -> np.ndarray | None:
@@ -92,6 +95,8 @@ class ControlStep:
         self._q_hold: np.ndarray | None = None
         self.model: Any = None
         self.data: Any = None
+        #: feed a held load's weight forward (Eq. (H1)); False measures the arm without it (read by ``bind``)
+        self.feed_load = True
 
     def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """Keep the raw model and data, and views of the arrays a step reads (each attribute access of
@@ -111,6 +116,37 @@ class ControlStep:
         self._k0, self._k1 = s.push_steps
         self._acts = np.asarray(self.robot.mj_actuator_ids)
         self._qvel_arm = contiguous(data.qvel, self._dadr)
+        self._load = self._held_load(model, data) if self.controller.actuation == "torque" and self.feed_load else None
+
+    def _held_load(self, model: mujoco.MjModel, data: mujoco.MjData) -> Callable[[], None] | None:
+        """The feed-forward of the load the release lets go of (Eq. (H1)), bound to ``data``: adds
+        J_c(q)^T (-m g) to the arm's controls; None without a release (``mj_applyFT`` does J^T f)."""
+        eq = self.schedule.release_eq
+        if eq < 0 or int(model.eq_type[eq]) != int(mujoco.mjtEq.mjEQ_WELD):
+            return None
+        held, tool = int(model.eq_obj1id[eq]), int(model.eq_obj2id[eq])
+        rel_pos, rel_quat = model.eq_data[eq, 3:6], model.eq_data[eq, 6:10]   # the tool's pose in the object's
+        rel = np.zeros(9)
+        mujoco.mju_quat2Mat(rel, rel_quat)
+        com = rel.reshape(3, 3).T @ (model.body_ipos[held] - rel_pos)        # c in the tool body's frame
+        lift = -float(model.body_mass[held]) * np.asarray(model.opt.gravity, dtype=np.float64)
+        qfrc, point, zero = np.zeros(model.nv), np.zeros(3), np.zeros(3)
+        rot, pos = data.xmat[tool].reshape(3, 3), data.xpos[tool]
+        dofs, acts = self._dadr, self._acts
+        arm = contiguous(qfrc, dofs)
+        ctrl = contiguous(data.ctrl, acts)
+        apply_ft, matmul, add = mujoco.mj_applyFT, np.matmul, np.add
+
+        def feed() -> None:
+            matmul(rot, com, out=point)
+            add(point, pos, out=point)
+            qfrc[:] = 0.0
+            apply_ft(model, data, lift, zero, point, tool, qfrc)
+            if arm is not None and ctrl is not None:
+                add(ctrl, arm, out=ctrl)
+            else:
+                data.ctrl[acts] += qfrc[dofs]
+        return feed
 
     def reset(self) -> None:
         """Start a run: the step index back to 0."""
@@ -123,7 +159,7 @@ class ControlStep:
             self._x = self._begin_arm()
             return self.p
         if self._split:
-            _step1(self.model, self.data)
+            physics_step1(self.model, self.data)
         q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
         p = self.p = self._measure(q)
         if self._pose:   # the twist of a pose command is taken at the measured chart point
@@ -144,7 +180,7 @@ class ControlStep:
         if self.arm is not None:
             return self._begin_arm()
         if self._split:
-            _step1(self.model, self.data)
+            physics_step1(self.model, self.data)
         q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
         p = self.p = self._measure(q)
         if self.k == self._h0:
@@ -166,19 +202,23 @@ class ControlStep:
                 self._push_row[:] = s.push_force
             elif k == self._k1:
                 self._push_row[:] = 0.0
+        if self._load is not None and k < s.release_step:   # the held load's weight, fed forward
+            self._load()
+        if k == s.release_step and s.release_eq >= 0:   # the hand lets go
+            data.eq_active[s.release_eq] = 0
         if s.mocap_pos is not None and k < len(s.mocap_pos):   # moving obstacles where they are at t_k
             data.mocap_pos[:] = s.mocap_pos[k]
         if s.qvel_noise is not None and k < len(s.qvel_noise):
             data.qvel[self._dadr] += s.qvel_noise[k]
             if self._split:   # the physics must see the noisy velocity, as a plain mj_step would
-                _step1(model, data)
+                physics_step1(model, data)
         self.k = k + 1
 
     def _begin_arm(self) -> np.ndarray:
         """Step 1 through the ``ArmController``: q measured (after ``mj_step1`` with ``split``), its
         FK and task point; returns x - dg, shape (d,)."""
         if self._split:
-            _step1(self.model, self.data)
+            physics_step1(self.model, self.data)
         q = self.q = self._q_arm if self._q_arm is not None else self._qpos[self._qadr]
         if self.k == self._h0:
             self._q_hold = q.copy()
@@ -195,11 +235,11 @@ class ControlStep:
         """Step 4: advance the physics by one control period (and clamp the arm inside a hold)."""
         m, d, n_sub = self.model, self.data, self.n_sub
         if self._split:
-            _step2(m, d)
+            physics_step2(m, d)
             if n_sub > 1:
-                _mj_step(m, d, n_sub - 1)
+                physics_step(m, d, n_sub - 1)
         else:
-            _mj_step(m, d, n_sub)
+            physics_step(m, d, n_sub)
         if self._h0 <= self.k - 1 < self._h1 and self._q_hold is not None:
             self._qpos[self._qadr] = self._q_hold
             self._qvel[self._dadr] = 0.0

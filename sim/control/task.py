@@ -146,7 +146,8 @@ class FieldTrackingTask(control.Task):
         self.n_steps = int(round(setup.duration_s / control_dt))
         bodies = {model.body(i).name: i for i in range(model.nbody)}
         self.schedule: Schedule = compile_schedule(
-            perturbations, placement, bodies, tool_body(robot, model), robot.n, self.n_steps, control_dt)
+            perturbations, placement, bodies, tool_body(robot, model), robot.n, self.n_steps, control_dt,
+            {model.equality(i).name: i for i in range(model.neq)})
         self.perturbations = tuple(perturbations)
         self._nmocap = int(model.nmocap)
         self._start_nominal = setup.start + self.schedule.start_offset_task

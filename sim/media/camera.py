@@ -6,7 +6,8 @@ the robot (for 3-D paths the normal is the direction in which the path is thinne
 base and the path, turned ``OUTWARD_DEG`` outwards): the arm, which reaches the path from the
 base through that plane, is then seen in profile and rises away from the path in the image
 instead of lying on it. The distance makes the path
-span ``PATH_FRACTION`` of the frame's width (or 80% of its height, whichever is tighter).
+span ``PATH_FRACTION`` of the frame's width (or 80% of its height, whichever is tighter), and keeps
+the scene's bodies (the whole arm over the run, the objects) within ``SCENE_FRACTION`` of it.
 ``CameraSpec`` is the ``--camera`` option: ``auto``, a camera of the model by name, or
 ``azimuth,elevation,distance`` (degrees, degrees, metres) around the path's centre.
 ``project`` maps world points to pixel coordinates of the camera of a rendered scene.
@@ -23,6 +24,7 @@ import numpy as np
 TILT_DEG = 55.0
 OUTWARD_DEG = 65.0
 PATH_FRACTION = 0.5
+SCENE_FRACTION = 0.7
 
 
 @dataclass(frozen=True)
@@ -71,11 +73,13 @@ def thin_normal(points: np.ndarray) -> np.ndarray:
 
 
 def task_camera(points: np.ndarray, base: np.ndarray, normal: np.ndarray | None, width: int, height: int,
-                fovy_deg: float = 45.0, spec: CameraSpec = CameraSpec()) -> mujoco.MjvCamera:
+                fovy_deg: float = 45.0, spec: CameraSpec = CameraSpec(),
+                scene_points: np.ndarray | None = None) -> mujoco.MjvCamera:
     """The free camera of ``spec`` (``auto`` or an orbit) for a path through points, shape (K, 3)
     (world, m), of an arm whose base is at ``base``, shape (3,); ``normal`` (3,) is the task
     plane's (None: from the points). See the module docstring. ``fovy_deg`` is the vertical field
-    of view it will be rendered with; ``width`` / ``height`` the frame's aspect."""
+    of view it will be rendered with; ``width`` / ``height`` the frame's aspect; ``scene_points``
+    (M, 3), world, what else must be in the frame (the arm's bodies over the run, the objects)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     lo, hi = pts.min(0), pts.max(0)
     centre = (lo + hi) / 2
@@ -114,6 +118,11 @@ def task_camera(points: np.ndarray, base: np.ndarray, normal: np.ndarray | None,
     half_h = math.tan(math.radians(fovy_deg) / 2)
     half_w = half_h * width / height
     cam.distance = max(wide / (2 * PATH_FRACTION * half_w), tall / (2 * 0.8 * half_h), 0.05)
+    if scene_points is not None and len(scene_points):   # the whole scene in the frame, around the path
+        # a point at rel from the centre is at depth D + rel . fwd: |rel . right| / depth <= fraction x half_w
+        rel = np.asarray(scene_points, dtype=np.float64).reshape(-1, 3) - centre
+        cam.distance = max(cam.distance, float(np.max(np.abs(rel @ right) / (SCENE_FRACTION * half_w) - rel @ fwd)),
+                           float(np.max(np.abs(rel @ up) / (SCENE_FRACTION * half_h) - rel @ fwd)))
     return cam
 
 

@@ -1,11 +1,12 @@
 """The arm job's results page (``index.html`` in its output folder), assembled from what its
 metrics.json holds (``sim.run.job_files``) and written with ``lfd.pages``.
 
-First what was run (the command, seed, versions, settings), then the verdict: a table per run
-(learner x scenario) of the headline metrics, the best of each scenario marked, and every failure
-said in a sentence (blocked, stopped short, a goal error above ``BLOCKED_GOAL_M``, joint-limit
-violations, a push never recovered from, obstacle contacts); then the videos (the side-by-side and
-grid videos first, then a row of learners per scenario), the figures and every file.
+First what was run (the command, seed, versions, settings), then the verdict: a task's success first
+(``--task``), a table per run (learner x scenario) of the headline metrics, the best of each scenario
+marked, and every failure said in a sentence (a task not done, blocked, stopped short, a goal error
+above ``BLOCKED_GOAL_M``, joint-limit violations, a push never recovered from, obstacle contacts); then
+the videos (the side-by-side and grid videos first, then a row of learners per scenario), the figures
+and every file.
 """
 
 from __future__ import annotations
@@ -63,6 +64,9 @@ def describe_scenario(name: str, perturbations: list[dict[str, Any]]) -> str:
 def run_problems(label: str, m: dict[str, Any], duration_s: float) -> list[str]:
     """Each failure of a run with metrics ``m`` in one sentence (none: it passed)."""
     out = []
+    task = m.get("task")
+    if task and not task["success"]:
+        out.append(f"{label} did not do its {task['task']} ({task['cause']}): {task['summary']}.")
     err = float(m["final_goal_error_m"]) * 1e3
     if m.get("blocked"):
         clear = m.get("final_clearance_m")
@@ -237,11 +241,16 @@ def job_page(report: dict[str, Any], json_path: Path, size: Callable[[Path], int
     said += [(f"{r['learner']} / push, seed {r['seed']} (grid)", r["metrics"])
              for r in report.get("grid", {}).get("runs", [])]
     failures = [p for label, m in said for p in run_problems(label, m, float(s["duration_s"]))]
+    tasks = [r for r in runs if r["metrics"].get("task")]   # a task's success first: what the user asked
+    done_task = [r for r in tasks if r["metrics"]["task"]["success"]]
+    first = [f"{tasks[0]['metrics']['task']['task']}: {len(done_task)} of {len(tasks)} runs succeeded ("
+             + "; ".join(f"{r['learner']} / {r['scenario']}: {r['metrics']['task']['summary']}" for r in tasks)
+             + ")."] if tasks else []
     return Page(
         title=f"Arm run: {_short(s['demos'])} on {s['robot']}",
         subtitle=f"{len(learners)} learner(s) x {len(scenarios)} scenario(s), {len(runs)} run(s); seed {s['seed']}",
         command=shlex.join(report.get("command") or []), facts=tuple(_facts(report)),
-        verdict=tuple(v for v in (_best_sentence(table),) if v), failures=tuple(failures), tables=(table,),
+        verdict=tuple(v for v in (*first, _best_sentence(table)) if v), failures=tuple(failures), tables=(table,),
         videos=tuple(_videos(report, learners, scenarios)), figures=tuple(_figures(report, learners, scenarios)),
         files=tuple(_files(report, json_path, size)), data_file=json_path,
         all_passed=f"No failures: every run ended within {BLOCKED_GOAL_M * 1e3:g} mm of its goal, inside its "

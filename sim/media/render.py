@@ -351,6 +351,20 @@ def _frame_mocap(trace: Any, times: np.ndarray, nmocap: int) -> np.ndarray | Non
     return np.asarray(path)[trace.steps_at(times)]
 
 
+def _scene_points(model: mujoco.MjModel, qpos: list[np.ndarray], samples: int = 12) -> np.ndarray:
+    """The bodies' origins (all but the world and the mocap obstacles), shape (M, 3), world, at
+    ``samples`` of each panel's frames ``qpos`` (F, nq): what the camera keeps in view."""
+    data = mujoco.MjData(model)
+    bodies = [i for i in range(1, model.nbody) if model.body_mocapid[i] < 0]
+    out = []
+    for frames in qpos:
+        for k in np.unique(np.linspace(0, len(frames) - 1, samples).round().astype(int)):
+            data.qpos[:] = frames[k]
+            mujoco.mj_kinematics(model, data)
+            out.append(data.xpos[bodies].copy())
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
 def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np.ndarray,
                   path: str | os.PathLike, base: np.ndarray, qpos_adr: np.ndarray,
                   normal: np.ndarray | None = None, width: int = WIDTH, height: int = HEIGHT,
@@ -394,7 +408,7 @@ def render_panels(model: mujoco.MjModel, panels: Sequence[Panel], demo_world: np
     else:
         if camera.orbit is None:
             fovy = AUTO_FOVY_DEG
-        cam = task_camera(pts, base, normal, pw, ph, fovy, camera)
+        cam = task_camera(pts, base, normal, pw, ph, fovy, camera, _scene_points(model, qpos))
     data = mujoco.MjData(model)
     demo_d = decimate(np.asarray(demo_world), PATH_POINTS)
     layers = [StaticLayer(pw, ph) for _ in panels]

@@ -137,12 +137,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--robot", default="panda", help="planar, panda (default), or a .urdf/.xml file")
     p.add_argument("--ee-frame", help="tool frame name (needed for a robot file)")
     p.add_argument("--learner", metavar="NAME,...|both", help="learner(s) to run, comma-separated: node, "
-                   "stable_node, contraction, tracking; both: node,contraction (default: the job's default "
-                   "learners, or the learner of --model)")
+                   "stable_node, contraction, tracking, or the DMP baseline dmp; both: node,contraction (default: "
+                   "the job's default learners, or the learner of --model)")
     p.add_argument("--model", help="a trained model file instead of training")
-    p.add_argument("--demos", default="spiral",
+    p.add_argument("--demos",
                    help="spiral (default), spiral3d, lasa:NAME, robottasks:TASK (poses), bag:PATH:/topic, "
-                        "or a .csv/.npz file")
+                        "or a .csv/.npz file (with --task: the task's RoboTasks9 demos by default)")
     lfd_commands.add_clean(p)
     p.add_argument("--perturb", type=scenarios, default=DEFAULT_SCENARIOS, metavar="|".join(SCENARIOS) + "|all",
                    help="perturbation scenario(s): one name, a comma list, or all (default: none,offset,push)")
@@ -212,9 +212,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--held-out", type=int, metavar="K",
                    help="train on every demo but demo K and run from its start (a held-out run)")
     p.add_argument("--task", help="a task with objects: pour (a cup of balls in the hand, a bowl on the table; "
-                                  "each run scored by whether 10 of 12 balls land in the bowl)")
+                                  "each run scored by whether 10 of 12 balls land in the bowl), place (a bottle "
+                                  "in the hand, let go on a shelf; scored by whether it stands on its spot) or lid "
+                                  "(a box's lid swung open by its handle; scored by whether it opens past 60 deg)")
     p.add_argument("--target", type=goal_vector, metavar="X,Y[,Z]",
-                   help="where the task's object stands (the bowl), m, robot base frame; the goal follows it")
+                   help="where the task's object stands (the bowl's centre on the table; the bottle's spot, Z the "
+                        "shelf's top), m, robot base frame; the goal follows it")
     p.add_argument("--limits", metavar="FILE",
                    help="the arm's limits as JSON (robots.limits.load_limits: q_min, q_max, dq_max, ddq_max, "
                         "dddq_max, ...; default: the robot's published ones, or its model's)")
@@ -227,12 +230,14 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
     """The ``ArmJob`` of parsed flags."""
     from lfd import commands as lfd_commands
     from sim.run.job import ArmJob, PushSpec
+    from sim.run.tasks import TASK_DEMOS
 
     learners = None if args.learner is None else (
         ("node", "contraction") if args.learner == "both"
         else tuple(s.strip() for s in args.learner.split(",") if s.strip()))
     return ArmJob(
-        robot=args.robot, ee_frame=args.ee_frame, learners=learners, model=args.model, demos=args.demos,
+        robot=args.robot, ee_frame=args.ee_frame, learners=learners, model=args.model,
+        demos=args.demos or TASK_DEMOS.get(args.task or "", "spiral"),
         clean=lfd_commands.demo_clean(args),
         scenarios=args.perturb, seed=args.seed, out=args.out, overwrite=args.overwrite, json=args.json,
         video=args.video, videos=not args.no_video, plots=not args.no_plots, camera=args.camera, size=args.size,

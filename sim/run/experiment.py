@@ -127,6 +127,8 @@ class Experiment:
     control_hz, ik, gains, feedforward, limiter : as ``sim.make_environment``.
     on_reset : callable, optional
         Places the scene's objects at each episode's start (``sim.make_environment``).
+    events : sequence of Perturbation
+        The scene's events, added to every run's perturbations (a task's ``Release``: the hand lets go).
     limits : Limits, optional
         The arm's limits (default ``robots.limits.limits_of(robot)``): the limiter's, and every run's
         report against them.
@@ -143,7 +145,8 @@ class Experiment:
                  gains: Gains = Gains(), feedforward: bool = True, fps: float = FPS,
                  obstacles: Sequence[Obstacle] = (), clearance: Clearance | str | None = "auto",
                  time_factor: float = 1.0, limiter: bool = False, limits: Limits | None = None,
-                 on_reset: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None) -> None:
+                 on_reset: Callable[[mujoco.MjModel, mujoco.MjData], None] | None = None,
+                 events: Sequence[Perturbation] = ()) -> None:
         if isinstance(robot, RunSetup):
             self.setup = robot
         else:
@@ -168,6 +171,8 @@ class Experiment:
         self.options: dict[str, Any] = dict(control_hz=control_hz, ik=ik, gains=gains, feedforward=feedforward,
                                             clearance=clearance, limiter=limiter, limits=self.limits,
                                             on_reset=on_reset)
+        #: the scene's events of every run (``Release``)
+        self.events: tuple[Perturbation, ...] = tuple(events)
         self.physics = ArmPhysics.from_robot(setup.robot)
         self.base = base_position(setup.robot)
         self.fps = float(fps)   # the rollouts record the full qpos at this video frame rate
@@ -178,7 +183,8 @@ class Experiment:
         """The dm_env environment of a run with ``perturbations`` (``sim.make_environment`` on this
         setup and physics), toward ``goal``, shape (d,), task units (default the setup's)."""
         setup = self.setup if goal is None else self.setup.moved(goal=goal)
-        return make_environment(setup, perturbations=perturbations, physics=self.physics, **self.options)
+        return make_environment(setup, perturbations=(*perturbations, *self.events), physics=self.physics,
+                                **self.options)
 
     def simulate(self, field: Field, perturbations: tuple[Perturbation, ...] = (),
                  progress: bool = False, desc: str = "run") -> RunTrace:

@@ -20,6 +20,8 @@ from sim.scene.perturbations import Perturbation, Push
 #: the learners a job runs when it names none (and the panels of a side-by-side video)
 DEFAULT_LEARNERS = ("node", "stable_node", "contraction")
 SIDE_BY_SIDE_LEARNERS = ("node", "contraction", "tracking")
+#: baselines a job runs beside the learners: the DMP (``lfd.bench.dmp_field``), fitted at every job
+BASELINES = ("dmp",)
 
 
 @dataclass(frozen=True)
@@ -130,8 +132,8 @@ class ArmJob:
         if self.model and self.learners is not None and len(self.learners) != 1:
             raise ConfigError("--model holds one learner; leave out --learner or name that learner")
         for name in self.learners or ():
-            if name not in LEARNERS:
-                raise ConfigError(f"unknown learner '{name}'; known: {', '.join(LEARNERS)}")
+            if name not in (*LEARNERS, *BASELINES):
+                raise ConfigError(f"unknown learner '{name}'; known: {', '.join((*LEARNERS, *BASELINES))}")
         for name in (*self.scenarios, *([self.side_by_side] if self.side_by_side else [])):
             if name not in SCENARIOS:
                 raise ConfigError(f"unknown scenario '{name}'; use one of {', '.join(SCENARIOS)}")

@@ -80,7 +80,7 @@ def run_job(job: ArmJob, on_run: Callable[[RunResult], None] | None = None) -> J
     if plan.task is not None:
         model = plan.exp.physics.model.ptr
         for r in unique:
-            r.metrics["task"] = plan.task.score(model, r.trace.frame_t, r.trace.frame_qpos,
+            r.metrics["task"] = plan.task.score(model, plan.exp.robot, r.trace.frame_t, r.trace.frame_qpos,
                                                 r.metrics["final_goal_error_m"])
         _say_task(plan, unique)
     _say_limits(plan, unique)
@@ -116,7 +116,7 @@ def _say_task(plan: JobPlan, runs: list[RunResult]) -> None:
     if plan.job.quiet or not runs:
         return
     done = [r for r in runs if r.metrics["task"]["success"]]
-    each = "; ".join(f"{r.learner}/{r.scenario} {r.metrics['task']['in_bowl']} in the bowl"
+    each = "; ".join(f"{r.learner}/{r.scenario} {r.metrics['task']['summary']}"
                      + ("" if r.metrics["task"]["success"] else f" ({r.metrics['task']['cause']})") for r in runs)
     print(f"{plan.job.task}: {len(done)} of {len(runs)} runs succeeded: {each}", file=sys.stderr)
 

@@ -12,7 +12,6 @@ executes the plan.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import sys
 import time
 from dataclasses import dataclass
@@ -22,6 +21,7 @@ import numpy as np
 
 import lfd
 from lfd import goal as moving_goal
+from lfd.bench.dmp_field import dmp_field
 from lfd.cache import cached_field
 from lfd.demos import DemoSet
 from lfd.demos.recording import loud_note
@@ -38,12 +38,11 @@ from sim.control.controller import Gains
 from sim.errors import PlacementError
 from sim.media.gl import require_backend
 from sim.run.experiment import Experiment
-from sim.run.job import DEFAULT_LEARNERS, SIDE_BY_SIDE_LEARNERS, ArmJob
+from sim.run.job import BASELINES, DEFAULT_LEARNERS, SIDE_BY_SIDE_LEARNERS, ArmJob
 from sim.run.job_files import JobFiles
 from sim.run.obstacle_runs import ObstacleRuns
-from sim.run.tasks import PourTask, plan_pour, with_scene
+from sim.run.tasks import Task, plan_task, shifted
 from sim.scene.perturbations import Perturbation
-from sim.scene.pour import place_balls
 from sim.scene.setup import RunSetup
 
 GoalMotion = tuple[str, Any]
@@ -76,7 +75,7 @@ class JobPlan:
     files: JobFiles
     runs: list[PlannedRun]
     progress: bool                   # progress bars (a terminal, not quiet)
-    task: PourTask | None = None     # the task with objects (``sim.run.tasks``), scored per run
+    task: Task | None = None     # the task with objects (``sim.run.tasks``), scored per run
 
     def say(self, text: str) -> None:
         """``text`` on stderr unless the job is quiet."""
@@ -103,9 +102,10 @@ def plan_job(job: ArmJob) -> JobPlan:
     files = JobFiles(job, planned)                     # every output path checked before any work
     demos = _demos(job)
     trained_on = _held_out(job, demos)
-    task = plan_pour(trained_on, job.target) if job.task == "pour" else None
-    if task is not None:   # the goal follows the bowl; the pose's orientation is the demos'
-        job = dataclasses.replace(job, goal=tuple(float(v) for v in task.goal), table=True)
+    task = None if job.task is None else plan_task(job.task, trained_on, job.target)
+    if task is not None:   # the goal follows the object; the pose's orientation is the demos'
+        task, shift = shifted(task, job.demos, job.shift)   # a lid's box moves with its demos
+        job = dataclasses.replace(job, goal=tuple(float(v) for v in task.goal), table=True, shift=shift)
     obstacles = [parse_obstacle(text, demos.dim) for text in job.obstacles]
     vias = [parse_via(text, demos.dim) for text in job.via]
     motion = goal_motion_of(job, demos.dim)
@@ -155,7 +155,7 @@ def _robot(job: ArmJob, demos: DemoSet) -> RobotModel:
                           f"cannot use ({e}); name the tool frame with --ee-frame") from None
 
 
-def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: PourTask | None = None,
+def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: Task | None = None,
                 trained_on: DemoSet | None = None) -> Experiment:
     """The job's experiment: the placement's reach checked on the scene with the obstacles (moving ones
     move), before any training; among obstacles with ``ObstacleRuns``' settings; a task's objects in
@@ -163,7 +163,7 @@ def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: Po
     training demos', and the run starts at the held-out demo's start."""
     robot = _robot(job, demos)
     if task is not None:
-        robot = with_scene(robot, task)
+        robot = task.with_scene(robot)
     if job.camera is not None:
         try:
             job.camera.check(robot.mj_model)
@@ -191,7 +191,8 @@ def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: Po
     return Experiment(setup, control_hz=job.control_hz, ik=job.ik, fps=job.fps, limiter=job.limiter,
                       gains=among.gains() if obstacles else Gains(), limits=limits,
                       clearance="auto" if job.arm_clearance else None,
-                      on_reset=None if task is None else functools.partial(place_balls, scene=task.scene))
+                      on_reset=None if task is None else task.on_reset(robot),
+                      events=() if task is None else task.events())
 
 
 def _goal(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle]) -> tuple[np.ndarray, str]:
@@ -262,6 +263,11 @@ def _fields(job: ArmJob, planned: list[str], demos: DemoSet, progress: bool
     main = list(fields) or planned
     for name in [*main, *(SIDE_BY_SIDE_LEARNERS if job.side_by_side else ())]:
         if name in fields:
+            continue
+        if name in BASELINES:   # the DMP: fitted here (milliseconds), no model file
+            fields[name] = dmp_field(demos)
+            models[name] = {"path": None, "trained_now": True, "options": {},
+                            "train_time_s": fields[name].history["train_time_s"], "load_or_train_s": 0.0}
             continue
         options = {} if job.iters is None else iters_option(name, job.iters)
         t0 = time.perf_counter()

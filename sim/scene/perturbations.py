@@ -10,6 +10,8 @@
   point l theta R_g^T A^T u, so the same translation of the field moves its attractor there exactly.
 * ``JointVelocityNoise``: every control step, qdot_j += N(0, std^2) on each arm joint.
 * ``Hold``: the arm is held still for ``duration_s`` from ``start_s`` (its joints clamped at rest).
+* ``Release``: not a disturbance but a scene's event: its equality constraint (a grip) switched off
+  at ``start_s``, so the hand lets go of what it holds (``sim.scene.place``).
 
 A random direction (when none is given) is drawn from the perturbation's own seed: in the task
 plane for a 2-D task, in space for a 3-D one. :func:`compile_schedule` turns a list of
@@ -145,6 +147,15 @@ class Hold(Perturbation):
     kind = "hold"
 
 
+@dataclass(frozen=True)
+class Release(Perturbation):
+    """Switch the scene's equality constraint ``equality`` off at ``start_s`` (the hand lets go)."""
+
+    start_s: float = 0.0
+    equality: str = ""
+    kind = "release"
+
+
 @dataclass
 class Schedule:
     """What the control loop applies, precomputed.
@@ -161,6 +172,8 @@ class Schedule:
         ``sim.scene.obstacles.mocap_path``) written before each step
     hold_steps : tuple[int, int]          -- control steps [h0, h1) of a hold ((-1, -1): none)
     hold_window_s : tuple[float, float] or None -- the same window in seconds of sim time
+    release_eq : int                      -- MuJoCo equality id switched off (-1: none)
+    release_step : int                    -- the control step that switches it off
     """
 
     start_offset_task: np.ndarray
@@ -174,12 +187,16 @@ class Schedule:
     mocap_pos: np.ndarray | None = None
     hold_steps: tuple[int, int] = (-1, -1)
     hold_window_s: tuple[float, float] | None = None
+    release_eq: int = -1
+    release_step: int = -1
 
 
 def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement, body_ids: dict[str, int],
-                     default_body: str, n_joints: int, n_steps: int, control_dt: float) -> Schedule:
+                     default_body: str, n_joints: int, n_steps: int, control_dt: float,
+                     equality_ids: dict[str, int] | None = None) -> Schedule:
     """Turn perturbations into a :class:`Schedule` for a run of ``n_steps`` control steps of
-    ``control_dt`` s. ``body_ids`` maps MuJoCo body names to ids (for the push)."""
+    ``control_dt`` s. ``body_ids`` maps MuJoCo body names to ids (for the push), ``equality_ids``
+    equality names to ids (for a release)."""
     d = placement.dim
     sched = Schedule(np.zeros(d), np.zeros(d))
     pushes = [p for p in perturbations if isinstance(p, Push)]
@@ -223,6 +240,14 @@ def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement
             h0, h1 = int(round(p.start_s / control_dt)), int(round((p.start_s + p.duration_s) / control_dt))
             sched.hold_steps = (h0, h1)
             sched.hold_window_s = (h0 * control_dt, h1 * control_dt)
+        elif isinstance(p, Release):
+            if p.equality not in (equality_ids or {}):
+                raise SimError(f"release: unknown equality '{p.equality}'; the scene has "
+                               f"{', '.join(sorted(equality_ids or {})) or 'none'}")
+            if sched.release_eq >= 0 or p.start_s < 0:
+                raise SimError("release: one per run, at start_s >= 0")
+            sched.release_eq = (equality_ids or {})[p.equality]
+            sched.release_step = int(round(p.start_s / control_dt))
         elif type(p) is not Perturbation:
             raise SimError(f"unknown perturbation {p!r}")
     if placement.chart is not None and not np.array_equal(goal_turn, np.eye(3)):

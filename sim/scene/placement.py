@@ -238,7 +238,9 @@ class Placement:
         sampled path points moved by ``margin_m`` along each world axis, in their own orientation.
         Each must be reached by ``solve_pose_ik`` (with the tool ``rotation`` held, if given, or the
         path's own for a pose path, then also to ``IK_TOLERANCE_RAD``) to ``IK_TOLERANCE_M``, with
-        every joint ``JOINT_MARGIN`` of its range inside its limits.
+        every joint within its limits: a path point ``JOINT_MARGIN`` of its range inside them (the arm
+        follows the path with room to spare), a margin point anywhere inside (where a push or an
+        offset start may take the arm for a moment).
         """
         pts = np.asarray(points, dtype=np.float64).reshape(-1, self.dim)
         if not np.isfinite(pts).all():
@@ -281,12 +283,14 @@ class Placement:
                 raise PlacementError(
                     f"placement unreachable on '{robot.name}': {where} {_fmt(p)} m is missed by "
                     f"{err * 1e3:.1f} mm ({hint})")
-            bad = np.flatnonzero((qs < qlo) | (qs > qhi))
+            bad = np.flatnonzero((qs < qlo) | (qs > qhi)) if on_path else \
+                np.flatnonzero((qs < robot.q_min) | (qs > robot.q_max))
             if bad.size:
                 j = int(bad[0])
+                within = f"within {JOINT_MARGIN:.0%} of" if on_path else "beyond"
                 raise PlacementError(
                     f"placement unreachable on '{robot.name}': {where} {_fmt(p)} m needs joint "
-                    f"'{robot.arm_joints[j]}' at {qs[j]:.2f} rad, within {JOINT_MARGIN:.0%} of its limits "
+                    f"'{robot.arm_joints[j]}' at {qs[j]:.2f} rad, {within} its limits "
                     f"[{robot.q_min[j]:.2f}, {robot.q_max[j]:.2f}]")
             if on_path:
                 q = qs

@@ -12,8 +12,7 @@ The scene (``build``) adds to the robot's MuJoCo scene (MjSpec), sizes in ``Pour
 * a bowl on the table (a disc and a wall of slabs) at ``bowl``, its bottom on the table top (z = 0);
   the table's top is grown to stand it on where it lies beyond it.
 
-The cup, the bowl, the balls and the table top (a plane of their own) collide with each other and not
-with the arm: the hand holds the cup through its fingers, and a ball is never caught between them.
+The objects collide with each other and their table top, not with the arm (``sim.scene.objects``).
 
 Where the bowl goes (``nominal_bowl``): under the cup's mouth at the demos' mean end pose (the pour's
 most tilted pose in a recorded pour), moved along the mouth's horizontal direction by the cup's radius
@@ -22,12 +21,12 @@ most tilted pose in a recorded pour), moved along the mouth's horizontal directi
 Success (``outcome``): every ball stays in the cup until its tilt first passes ``POUR_TILT_DEG``, and at
 least ``SUCCESS_BALLS`` rest inside the bowl ``SETTLE_AFTER_S`` after the motion ends. A failure is named
 in one word: ``spilled early``, ``missed the bowl``, ``not poured`` (the cup never tilted far enough);
-``sim.run.tasks`` adds ``stopped short`` (the tool ended away from its pouring pose).
+``sim.run.tasks`` adds ``stopped short`` (the tool ended away from its pouring pose). ``PourCheck``:
+the same predicate online, for a dm_env task's reward.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -37,13 +36,15 @@ import mujoco
 import numpy as np
 
 from robots import RobotModel
-from sim.errors import SimError
+from sim.scene import objects
 
 #: the tilt of the cup's axis from the vertical, deg, from which on balls may leave it
 POUR_TILT_DEG = 60.0
 #: balls in the bowl for a success, and how long after the motion ends they are counted, s
 SUCCESS_BALLS = 10
 SETTLE_AFTER_S = 1.0
+#: a ball at rest moves slower than this, m/s (``PourCheck``)
+REST_SPEED_M_S = 0.05
 _CUP, _BOWL, _BALL = "pour_cup", "pour_bowl", "pour_ball"
 
 
@@ -97,32 +98,16 @@ def nominal_bowl(end_position: np.ndarray, end_rotation: np.ndarray, axis: np.nd
     return np.array([mouth[0] + shift[0], mouth[1] + shift[1], 0.0])
 
 
-def _f(values: Any) -> str:
-    return " ".join(repr(float(v)) for v in np.atleast_1d(values))
-
-
-def _geom(parent: ET.Element, **attrs: Any) -> None:
-    ET.SubElement(parent, "geom", {k: v if isinstance(v, str) else _f(v) for k, v in attrs.items()})
-
-
-def _body(parent: ET.Element, name: str, pos: Any, mass: float, inertia: Any, quat: Any = (1.0, 0.0, 0.0, 0.0)
-          ) -> ET.Element:
-    """A body with an explicit inertial (the robot's scene does not infer inertia from geoms)."""
-    body = ET.SubElement(parent, "body", {"name": name, "pos": _f(pos), "quat": _f(quat)})
-    ET.SubElement(body, "inertial", {"pos": "0 0 0", "mass": _f(mass), "diaginertia": _f(inertia)})
-    return body
-
-
 def _ring(body: ET.Element, name: str, radius: float, height: float, z: float, scene: PourScene, rgba: str) -> None:
     """A wall of ``segments`` slabs around the body's z axis, inner radius ``radius``, centred at height ``z``."""
     n = scene.segments
     half_w = (radius + scene.wall) * math.tan(math.pi / n) + 1e-4
     for k in range(n):
         a = 2 * math.pi * k / n
-        _geom(body, name=f"{name}_wall{k}", type="box", size=[scene.wall / 2, half_w, height / 2],
-              pos=[(radius + scene.wall / 2) * math.cos(a), (radius + scene.wall / 2) * math.sin(a), z],
-              quat=[math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)], contype="2", conaffinity="2", rgba=rgba,
-              friction=[scene.friction, 0.005, 0.0001])
+        objects.geom(body, scene.friction, name=f"{name}_wall{k}", type="box",
+                     size=[scene.wall / 2, half_w, height / 2],
+                     pos=[(radius + scene.wall / 2) * math.cos(a), (radius + scene.wall / 2) * math.sin(a), z],
+                     quat=[math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)], rgba=rgba)
 
 
 def build(robot: RobotModel, axis: np.ndarray, bowl: np.ndarray, scene: PourScene = PourScene()) -> RobotModel:
@@ -144,58 +129,33 @@ def build(robot: RobotModel, axis: np.ndarray, bowl: np.ndarray, scene: PourScen
         The same arm in the scene with the objects (its joint and actuator indices unchanged).
     """
     root = ET.fromstring(robot.mjcf_xml)
-    model = robot.mj_model
-    site = model.site(robot.mj_ee_site)
-    tool = model.body(int(site.bodyid[0])).name
-    tool_el = next((b for b in root.iter("body") if b.get("name") == tool), None)
+    tool_el, site = objects.tool_body(root, robot)
     world = root.find("worldbody")
-    if tool_el is None or world is None:
-        raise SimError(f"the pour scene needs the tool body '{tool}' in the robot's scene")
+    assert world is not None   # a compiled robot's scene
     # the cup's frame: origin on the tool point, z along ``axis`` (tool frame)
-    z = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    site_rot = np.zeros(9)
-    mujoco.mju_quat2Mat(site_rot, site.quat)
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, (site_rot.reshape(3, 3) @ np.column_stack([x, np.cross(z, x), z])).ravel())
+    quat = objects.quaternion(objects.frame_along(axis, site.quat))
     h, r_cup = scene.cup_height, scene.cup_radius + scene.wall
-    cup = _body(tool_el, _CUP, site.pos, scene.cup_mass,
-                [scene.cup_mass * (r_cup ** 2 / 2 + h ** 2 / 12)] * 2 + [scene.cup_mass * r_cup ** 2], quat)
+    cup = objects.body(tool_el, _CUP, site.pos, scene.cup_mass,
+                       [scene.cup_mass * (r_cup ** 2 / 2 + h ** 2 / 12)] * 2 + [scene.cup_mass * r_cup ** 2], quat)
     glass = "0.85 0.85 0.9 0.55"
-    _geom(cup, name=f"{_CUP}_bottom", type="cylinder", size=[r_cup, scene.wall / 2],
-          pos=[0, 0, -h / 2 + scene.wall / 2], contype="2", conaffinity="2", rgba=glass,
-          friction=[scene.friction, 0.005, 0.0001])
+    objects.geom(cup, scene.friction, name=f"{_CUP}_bottom", type="cylinder", size=[r_cup, scene.wall / 2],
+                 pos=[0, 0, -h / 2 + scene.wall / 2], rgba=glass)
     _ring(cup, _CUP, scene.cup_radius, h, 0.0, scene, glass)
-    top = next((g for g in root.iter("geom") if g.get("name") == "table_top"), None)
-    if top is not None:   # the table grown to stand the bowl on
-        c = np.array([float(v) for v in top.get("pos", "0 0 0").split()])
-        half = np.array([float(v) for v in top.get("size", "0 0 0").split()])
-        margin = scene.bowl_radius + 0.1
-        lo = np.minimum(c[:2] - half[:2], np.asarray(bowl[:2]) - margin)
-        hi = np.maximum(c[:2] + half[:2], np.asarray(bowl[:2]) + margin)
-        top.set("pos", _f([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, c[2]]))
-        top.set("size", _f([(hi[0] - lo[0]) / 2, (hi[1] - lo[1]) / 2, half[2]]))
-    # the table top for the objects (the robot's own top collides with the arm's bit only)
-    _geom(world, name="pour_table", type="plane", size=[0, 0, 1], pos=[0, 0, 0], contype="2", conaffinity="2",
-          rgba="0 0 0 0", friction=[scene.friction, 0.005, 0.0001])
-    bowl_el = ET.SubElement(world, "body", {"name": _BOWL, "pos": _f([bowl[0], bowl[1], 0.0])})
+    objects.grow_table(root, bowl, scene.bowl_radius + 0.1)   # the table grown to stand the bowl on
+    objects.object_table(world, "pour_table", scene.friction)
+    bowl_el = ET.SubElement(world, "body", {"name": _BOWL, "pos": objects.fmt([bowl[0], bowl[1], 0.0])})
     clay = "0.55 0.35 0.2 1"
-    _geom(bowl_el, name=f"{_BOWL}_bottom", type="cylinder", size=[scene.bowl_radius + scene.wall, scene.wall / 2],
-          pos=[0, 0, scene.wall / 2], contype="2", conaffinity="2", rgba=clay, friction=[scene.friction, 0.005, 0.0001])
+    objects.geom(bowl_el, scene.friction, name=f"{_BOWL}_bottom", type="cylinder",
+                 size=[scene.bowl_radius + scene.wall, scene.wall / 2], pos=[0, 0, scene.wall / 2], rgba=clay)
     _ring(bowl_el, _BOWL, scene.bowl_radius, scene.bowl_height, scene.wall + scene.bowl_height / 2, scene, clay)
     for i in range(scene.n_balls):
-        ball = _body(world, f"{_BALL}{i}", [0.0, 0.0, 1.0 + 0.05 * i], scene.ball_mass,
-                     [0.4 * scene.ball_mass * scene.ball_radius ** 2] * 3)
+        ball = objects.body(world, f"{_BALL}{i}", [0.0, 0.0, 1.0 + 0.05 * i], scene.ball_mass,
+                            [0.4 * scene.ball_mass * scene.ball_radius ** 2] * 3)
         ET.SubElement(ball, "freejoint", {"name": f"{_BALL}{i}"})
-        _geom(ball, type="sphere", size=[scene.ball_radius], contype="2", conaffinity="2", rgba="0.9 0.3 0.1 1",
-              friction=[scene.friction, 0.005, scene.rolling], condim="6", solref=[0.01, scene.damping])
-    xml = ET.tostring(root, encoding="unicode")
-    try:
-        compiled = mujoco.MjModel.from_xml_string(xml, dict(robot.mj_assets or {}))
-    except ValueError as exc:
-        raise SimError(f"the pour scene does not compile: {str(exc).splitlines()[0]}") from None
-    return dataclasses.replace(robot, mjcf_xml=xml, mj_model=compiled)
+        g = objects.geom(ball, scene.friction, type="sphere", size=[scene.ball_radius], rgba="0.9 0.3 0.1 1",
+                         condim="6", solref=[0.01, scene.damping])
+        g.set("friction", objects.fmt([scene.friction, 0.005, scene.rolling]))
+    return objects.compiled(robot, root, "pour")
 
 
 def ball_offsets(scene: PourScene = PourScene()) -> np.ndarray:
@@ -222,6 +182,50 @@ def place_balls(model: mujoco.MjModel, data: mujoco.MjData, scene: PourScene = P
         data.qpos[a:a + 3] = pos + rot @ offset
         data.qpos[a + 3:a + 7] = (1.0, 0.0, 0.0, 0.0)
         data.qvel[v:v + 6] = 0.0
+
+
+def _in_cup(balls: np.ndarray, cup_pos: np.ndarray, cup_rot: np.ndarray, scene: PourScene) -> np.ndarray:
+    """Which balls (positions (B, 3), world) are inside the cup at ``cup_pos`` (3,), ``cup_rot`` (3, 3), (B,) bool."""
+    local = (balls - cup_pos) @ cup_rot
+    return (np.hypot(local[:, 0], local[:, 1]) < scene.cup_radius + scene.wall) & \
+        (np.abs(local[:, 2]) < scene.cup_height / 2 + scene.ball_radius)
+
+
+def _in_bowl(balls: np.ndarray, bowl_pos: np.ndarray, scene: PourScene) -> np.ndarray:
+    """Which balls (positions (B, 3), world) are inside the bowl standing at ``bowl_pos`` (3,), (B,) bool."""
+    rel = balls - bowl_pos
+    return (np.hypot(rel[:, 0], rel[:, 1]) < scene.bowl_radius) & (rel[:, 2] > 0.0) & \
+        (rel[:, 2] < scene.wall + scene.bowl_height)
+
+
+class PourCheck:
+    """The pour's success, online, on a simulation's current state (what a dm_env task's reward reads):
+    true once no ball left the cup before its tilt first passed ``POUR_TILT_DEG`` and at least
+    ``SUCCESS_BALLS`` balls rest (slower than ``REST_SPEED_M_S``) inside the bowl. ``reset`` at each
+    episode's start; the call after each step (the bodies' poses computed)."""
+
+    def __init__(self, model: mujoco.MjModel, scene: PourScene = PourScene()) -> None:
+        self.scene = scene
+        self._cup, self._bowl = model.body(_CUP).id, model.body(_BOWL).id
+        joints = [model.joint(f"{_BALL}{i}") for i in range(scene.n_balls)]
+        self._pos = np.array([int(j.qposadr[0]) + k for j in joints for k in range(3)])
+        self._vel = np.array([int(j.dofadr[0]) + k for j in joints for k in range(3)])
+        self.poured = self.spilled = False
+
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """A new episode: nothing poured, nothing spilled."""
+        self.poured = self.spilled = False
+
+    def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> bool:
+        balls = data.qpos[self._pos].reshape(-1, 3)
+        if not self.poured:
+            rot = data.xmat[self._cup].reshape(3, 3)
+            self.spilled = self.spilled or not _in_cup(balls, data.xpos[self._cup], rot, self.scene).all()
+            self.poured = tilt_deg(rot, np.array([0.0, 0.0, 1.0])) >= POUR_TILT_DEG
+        if self.spilled or not self.poured:
+            return False
+        still = np.linalg.norm(data.qvel[self._vel].reshape(-1, 3), axis=1) < REST_SPEED_M_S
+        return int(np.count_nonzero(_in_bowl(balls, data.xpos[self._bowl], self.scene) & still)) >= SUCCESS_BALLS
 
 
 def outcome(model: mujoco.MjModel, frame_t: np.ndarray, frame_qpos: np.ndarray, motion_end_s: float,
@@ -262,17 +266,11 @@ def outcome(model: mujoco.MjModel, frame_t: np.ndarray, frame_qpos: np.ndarray, 
         max_tilt = max(max_tilt, tilt)
         balls = np.array([qpos[a:a + 3] for a in adr])
         if poured_at is None:
-            local = (balls - data.xpos[cup]) @ rot
-            inside = (np.hypot(local[:, 0], local[:, 1]) < scene.cup_radius + scene.wall) & \
-                (np.abs(local[:, 2]) < scene.cup_height / 2 + scene.ball_radius)
-            in_cup_before = int(np.count_nonzero(inside))
+            in_cup_before = int(np.count_nonzero(_in_cup(balls, data.xpos[cup], rot, scene)))
             if tilt >= POUR_TILT_DEG:
                 poured_at = float(t)
         if k == k_count:
-            rel = balls - data.xpos[bowl]
-            inside = (np.hypot(rel[:, 0], rel[:, 1]) < scene.bowl_radius) & (rel[:, 2] > 0.0) & \
-                (rel[:, 2] < scene.wall + scene.bowl_height)
-            in_bowl = int(np.count_nonzero(inside))
+            in_bowl = int(np.count_nonzero(_in_bowl(balls, data.xpos[bowl], scene)))
     spilled = in_cup_before < scene.n_balls
     success = not spilled and poured_at is not None and in_bowl >= SUCCESS_BALLS
     cause = None if success else "spilled early" if spilled else "not poured" if poured_at is None \

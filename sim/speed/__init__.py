@@ -18,4 +18,5 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "obstacles": ("sim.speed.obstacles", "obstacle avoidance and moving goals in task space: cost and results"),
     "arm-clearance": ("sim.speed.arm_clearance", "what whole-arm clearance costs per control step on the Panda"),
     "render": ("sim.speed.render", "video frames per second of sim.media.render (GL, overlays, H.264)"),
+    "tasks": ("sim.speed.tasks", "the control step with a task's objects against the empty scene, net of physics"),
 }

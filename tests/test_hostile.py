@@ -355,7 +355,7 @@ def test_demo_arm_checks_outputs_and_seed_first(demo_arm, tmp_path: Path,  # typ
         ([*run, "--limits", str(tmp_path / "none.json")], "limits file not found"),
         ([*run, "--task", "nope"], "unknown task 'nope'; known: pour, place, lid"),
         ([*run, "--task", "lid", "--target", "0.4,-0.4"], "the lid's box stays where it was recorded"),
-        ([*run, "--task", "lid", "--demos", "spiral"], "--task lid needs 3-D demos (a lid swung in space)"),
+        ([*run, "--task", "lid", "--demos", "spiral"], "--task lid needs demos of poses (an object to turn)"),
         ([*run, "--task", "pour", "--shift", "0,0.02,0"], "--shift: the pour puts its objects in the robot's"),
         ([*run, "--held-out", "5"], "--held-out must name one of the 5 demos (0 to 4)"),
         ([*run, "--target", "0.4,0.1"], "--target places a task's object: give --task"),

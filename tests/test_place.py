@@ -166,3 +166,17 @@ def test_the_task_benchmark_runs_in_parallel_and_gives_the_same_records_on_ray(t
         assert (other["success"], other["cause"], other["target_m"]) == (rec["success"], rec["cause"], rec["target_m"])
         assert other["off_spot_m"] == pytest.approx(rec["off_spot_m"], abs=1e-9)
         assert other["goal_error_m"] == pytest.approx(rec["goal_error_m"], abs=1e-9)
+
+
+def test_the_release_and_the_judging_follow_the_run_at_its_speed(tmp_path: Path) -> None:
+    """At --speed 2 the grip opens when the faster motion ends (half the demos' time), within the run."""
+    from sim.run.plan import plan_job
+
+    base = dict(demos="robottasks:bottle2shelf", learners=("tracking",), task="place", scenarios=("none",),
+                videos=False, plots=False, quiet=True, out=str(tmp_path))
+    plan = plan_job(sim.ArmJob(speed=2.0, **base))   # type: ignore[arg-type]
+    assert plan.task is not None and plan.task.motion_end_s == pytest.approx(16.65 / 2, abs=0.02)
+    (release,) = plan.exp.events
+    assert release.start_s == pytest.approx(plan.task.motion_end_s) and release.start_s < plan.exp.duration_s - 1
+    run = sim.run_job(sim.ArmJob(speed=2.0, **base)).results[0]   # type: ignore[arg-type]
+    assert run.metrics["task"]["success"], run.metrics["task"]

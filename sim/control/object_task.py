@@ -4,8 +4,9 @@ predicate read from the physics state, a task whose reward is it).
 
 The predicate (``SuccessCheck``: ``sim.scene.pour.PourCheck``, ``sim.scene.place.PlaceCheck``) is
 evaluated on the state after each step: the reward is 1.0 where it holds and 0.0 elsewhere, and the
-first step where it holds is the episode's last (discount 0: nothing follows a success). The
-observation, the action and the control step are the tracking task's.
+first step where it holds is the episode's last (discount 0: nothing follows a success; at the time
+limit dm_control's discount 1 stands). The observation, the action and the control step (the lean one
+of ``sim.control.env``) are the tracking task's.
 """
 
 from __future__ import annotations
@@ -48,9 +49,9 @@ class ObjectTask(FieldTrackingTask):
         self.done = bool(self.success(self.step.model, self.step.data))
         return float(self.done), obs
 
-    def get_reward(self, physics: ArmPhysics) -> float:
-        """1.0 where the predicate holds at the current state, else 0.0."""
-        self.done = bool(self.success(physics.model.ptr, physics.data.ptr))
+    def reward_now(self) -> float:
+        """1.0 where the predicate holds at the bound state (``bind``), else 0.0 (what ``get_reward`` returns)."""
+        self.done = bool(self.success(self.step.model, self.step.data))
         return float(self.done)
 
     def get_termination(self, physics: ArmPhysics) -> float | None:

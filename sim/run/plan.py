@@ -110,7 +110,7 @@ def plan_job(job: ArmJob) -> JobPlan:
     vias = [parse_via(text, demos.dim) for text in job.via]
     motion = goal_motion_of(job, demos.dim)
     goal = _goal(job, demos, obstacles)
-    exp = _experiment(job, demos, obstacles, task, trained_on)
+    exp, task = _experiment(job, demos, obstacles, task, trained_on)
     avoided = _avoided(job, exp, obstacles, goal, motion)
     _check_runs(job, exp, vias)
     fields, models, main = _fields(job, planned, trained_on, progress)
@@ -156,11 +156,12 @@ def _robot(job: ArmJob, demos: DemoSet) -> RobotModel:
 
 
 def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: Task | None = None,
-                trained_on: DemoSet | None = None) -> Experiment:
+                trained_on: DemoSet | None = None) -> tuple[Experiment, Task | None]:
     """The job's experiment: the placement's reach checked on the scene with the obstacles (moving ones
     move), before any training; among obstacles with ``ObstacleRuns``' settings; a task's objects in
-    the scene, placed at every episode's start. Held out, the placement (and a pose task's chart) is the
-    training demos', and the run starts at the held-out demo's start."""
+    the scene, placed at every episode's start, and its motion's end that of the run's own demo at the
+    job's speed (returned with it). Held out, the placement (and a pose task's chart) is the training
+    demos', and the run starts at the held-out demo's start."""
     robot = _robot(job, demos)
     if task is not None:
         robot = task.with_scene(robot)
@@ -188,11 +189,13 @@ def _experiment(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle], task: Ta
             raise ConfigError(f"--limits: {limits.n} joints in {job.limits}, but '{robot.name}' has {robot.n}")
     if job.limiter:   # the limiter's limits, before any training
         JointLimiter(limits_of(robot) if limits is None else limits, 1.0 / job.control_hz)
+    if task is not None:   # the release and the judging follow the motion as this run makes it
+        task = task.timed(float(setup.demo_t[-1]))
     return Experiment(setup, control_hz=job.control_hz, ik=job.ik, fps=job.fps, limiter=job.limiter,
                       gains=among.gains() if obstacles else Gains(), limits=limits,
                       clearance="auto" if job.arm_clearance else None,
                       on_reset=None if task is None else task.on_reset(robot),
-                      events=() if task is None else task.events())
+                      events=() if task is None else task.events()), task
 
 
 def _goal(job: ArmJob, demos: DemoSet, obstacles: list[Obstacle]) -> tuple[np.ndarray, str]:

@@ -60,8 +60,9 @@ def make_task_environment(task: str, learner_field: Field | None = None, *, demo
                                         actuation="torque", table=True))
     goal = tuple(float(v) for v in planned.goal)
     setup = RunSetup.resolve(arm, demo_set, goal=goal, shift=shift)
+    planned = planned.timed(float(setup.demo_t[-1]))   # the release and the judging follow the run's demo
     field = None if learner_field is None else learner_field.toward(planned.goal)
     return make_environment(setup, learner_field=field, perturbations=(*perturbations, *planned.events()),
                             clearance=Clearance(), on_reset=planned.on_reset(arm), seed=seed,
                             start_radius=start_radius, control_hz=control_hz, duration_s=duration_s,
-                            success=planned.check(arm.mj_model))
+                            success=planned.check(arm.mj_model, arm))

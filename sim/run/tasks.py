@@ -72,6 +72,10 @@ class PourTask:
         """Where the object stands, shape (3,), world, m."""
         return self.bowl
 
+    def timed(self, motion_end_s: float) -> PourTask:
+        """The same task with the motion ending at ``motion_end_s`` (the run's demo at its speed)."""
+        return dataclasses.replace(self, motion_end_s=float(motion_end_s))
+
     def with_scene(self, robot: RobotModel) -> RobotModel:
         """``robot`` (loaded with a table) with the pour's objects (``sim.scene.pour.build``)."""
         return pour.build(robot, self.axis, self.bowl, self.scene)
@@ -84,7 +88,7 @@ class PourTask:
         """The scene's events of every run: none."""
         return ()
 
-    def check(self, model: mujoco.MjModel) -> pour.PourCheck:
+    def check(self, model: mujoco.MjModel, robot: RobotModel) -> pour.PourCheck:
         """The online predicate on ``model`` (the scene of ``with_scene``): a dm_env task's reward."""
         return pour.PourCheck(model, self.scene)
 
@@ -119,6 +123,10 @@ class PlaceTask:
         """Where the object stands, shape (3,), world, m."""
         return self.spot
 
+    def timed(self, motion_end_s: float) -> PlaceTask:
+        """The same task with the motion ending (the grip opening) at ``motion_end_s``."""
+        return dataclasses.replace(self, motion_end_s=float(motion_end_s))
+
     def with_scene(self, robot: RobotModel) -> RobotModel:
         """``robot`` (loaded with a table) with the bottle and the shelf (``sim.scene.place.build``)."""
         return place.build(robot, self.axis, self.spot, self.scene)
@@ -131,9 +139,9 @@ class PlaceTask:
         """The scene's events of every run: the grip opens when the motion ends."""
         return (Release(start_s=self.motion_end_s, equality=place.GRIP),)
 
-    def check(self, model: mujoco.MjModel) -> place.PlaceCheck:
+    def check(self, model: mujoco.MjModel, robot: RobotModel) -> place.PlaceCheck:
         """The online predicate on ``model`` (the scene of ``with_scene``): a dm_env task's reward."""
-        return place.PlaceCheck(model, self.spot, self.scene)
+        return place.PlaceCheck(model, robot, self.axis, self.spot, self.scene)
 
     def score(self, model: Any, robot: RobotModel, frame_t: np.ndarray, frame_qpos: np.ndarray,
               goal_error_m: float = 0.0) -> dict[str, Any]:
@@ -175,6 +183,10 @@ class LidTask:
         """The hinge: the box stays where it was recorded."""
         return self.hinge
 
+    def timed(self, motion_end_s: float) -> LidTask:
+        """The same task with the motion ending at ``motion_end_s``."""
+        return dataclasses.replace(self, motion_end_s=float(motion_end_s))
+
     def with_scene(self, robot: RobotModel) -> RobotModel:
         """``robot`` (loaded with a table) with the box and its lid (``sim.scene.lid.build``)."""
         return lid.build(robot, self.hinge, self.axis, self.length, self.start, self.scene)
@@ -191,9 +203,9 @@ class LidTask:
         """The scene's events of every run: none (the hand keeps the handle)."""
         return ()
 
-    def check(self, model: mujoco.MjModel) -> lid.LidCheck:
+    def check(self, model: mujoco.MjModel, robot: RobotModel) -> lid.LidCheck:
         """The online predicate on ``model`` (the scene of ``with_scene``): a dm_env task's reward."""
-        return lid.LidCheck(model)
+        return lid.LidCheck(model, self.scene)
 
     def score(self, model: Any, robot: RobotModel, frame_t: np.ndarray, frame_qpos: np.ndarray,
               goal_error_m: float = 0.0) -> dict[str, Any]:
@@ -246,7 +258,7 @@ def plan_pour(demos: DemoSet, target: tuple[float, ...] | None) -> PourTask:
         if t.shape == (3,) and abs(t[2]) > 1e-3:
             raise ConfigError(f"--target: the bowl stands on the table (Z = 0), got Z = {t[2]:g} m")
         bowl = np.array([t[0], t[1], 0.0])
-    return PourTask(axis, bowl, nominal, end + (bowl - nominal), float(demos.t[0, -1]))
+    return PourTask(axis, bowl, nominal, end + (bowl - nominal), float(demos.t[0, -1] - demos.t[0, 0]))
 
 
 def plan_place(demos: DemoSet, target: tuple[float, ...] | None) -> PlaceTask:
@@ -263,29 +275,29 @@ def plan_place(demos: DemoSet, target: tuple[float, ...] | None) -> PlaceTask:
     if not scene.board < spot[2] - scene.drop <= MAX_SHELF_M:
         raise ConfigError(f"the shelf's top at {spot[2] - scene.drop:.3f} m is not between the board's "
                           f"{scene.board:g} m above the table and {MAX_SHELF_M:g} m")
-    return PlaceTask(axis, spot, nominal, end + (spot - nominal), float(demos.t[0, -1]), scene)
+    return PlaceTask(axis, spot, nominal, end + (spot - nominal), float(demos.t[0, -1] - demos.t[0, 0]), scene)
 
 
 def plan_lid(demos: DemoSet, target: tuple[float, ...] | None) -> LidTask:
     """The opening of ``demos`` (module docstring); ``ConfigError`` of one line for demos that are not
-    3-D, that do not swing on a circle through ``sim.scene.lid.OPEN_DEG``, or a ``target``."""
+    poses, that do not swing on a circle through ``sim.scene.lid.OPEN_DEG``, or a ``target``."""
     if target is not None:
         raise ConfigError("--target: the lid's box stays where it was recorded (its hinge is fitted to the "
                           "demos); leave out --target")
-    if demos.x.shape[-1] != 3:
-        raise ConfigError(f"--task lid needs 3-D demos (a lid swung in space); {demos.name} are {demos.dim}-D")
+    _ends(demos, "lid")   # poses, in the robot's base frame
     path = demos.x.mean(axis=0)
     hinge, axis, length = lid.fit_hinge(path)
     flat = path - hinge - np.outer((path - hinge) @ axis, axis)
     miss = float(np.sqrt(np.mean((np.linalg.norm(flat, axis=1) - length) ** 2)))
     a, b = flat[0] / np.linalg.norm(flat[0]), flat[-1] / np.linalg.norm(flat[-1])
     swing = float(np.degrees(np.arctan2(np.cross(a, b) @ axis, a @ b)))
-    if miss > LID_FIT * length or swing < lid.OPEN_DEG:
+    if not (np.isfinite([miss, swing, length]).all() and length > 0 and miss <= LID_FIT * length
+            and swing >= lid.OPEN_DEG):
         raise ConfigError(f"--task lid: the demos {demos.name} do not swing a lid open: they turn {swing:.0f} deg "
                           f"on the best circle (radius {length:.3f} m, missed by {miss * 1e3:.0f} mm RMS), not past "
                           f"{lid.OPEN_DEG:g} deg on one")
     return LidTask(hinge, axis, length, path[0].copy(), np.asarray(demos.goal, dtype=np.float64)[:3],
-                   float(demos.t[0, -1]))
+                   float(demos.t[0, -1] - demos.t[0, 0]))
 
 
 def shifted(task: Task, demos: str, shift: tuple[float, float, float] | None

@@ -18,7 +18,7 @@ The scene (``build``), sizes in ``LidScene``:
 Success (``outcome``): the lid opened past ``OPEN_DEG`` ``SETTLE_AFTER_S`` after the motion ends. A
 failure is named in one word: ``lost the lid`` (the handle reached the end of its slide, or the grip
 was stretched more than ``STRETCH_M``), ``not opened``; ``sim.run.tasks`` adds ``stopped short``.
-``LidCheck``: the same predicate online, for a dm_env task's reward.
+``LidCheck``: the same conditions checked online, at every step, for a dm_env task's reward.
 """
 
 from __future__ import annotations
@@ -111,7 +111,7 @@ def build(robot: RobotModel, hinge: np.ndarray, axis: np.ndarray, length: float,
                        com=[length / 2, 0.0, -t / 2])
     ET.SubElement(lid, "joint", {"name": _LID, "type": "hinge", "axis": "0 -1 0", "pos": "0 0 0",
                                  "damping": objects.fmt(scene.damping), "frictionloss": objects.fmt(scene.friction),
-                                 "range": "-5 175", "limited": "true"})
+                                 "range": objects.fmt(np.radians([-5.0, 175.0])), "limited": "true"})
     objects.geom(lid, 0.6, name=f"{_LID}_plate", type="box", size=[length / 2, w / 2, t / 2],
                  pos=[length / 2, 0.0, -t / 2], rgba=wood)
     hm = scene.handle_mass
@@ -159,20 +159,27 @@ def lid_angle_deg(model: mujoco.MjModel, qpos: np.ndarray) -> float:
 
 
 class LidCheck:
-    """The opening's success, online, on a simulation's current state (what a dm_env task's reward
-    reads): the lid open past ``OPEN_DEG`` with the grip unstretched (``STRETCH_M``)."""
+    """The opening's success, online, on a simulation's current state (what a dm_env task's reward reads):
+    the conditions of ``outcome`` checked at every step, not once after the motion: true when the lid is
+    open past ``OPEN_DEG`` and the handle has stayed in the hand (never at the end of its slide, the grip
+    never stretched past ``STRETCH_M``). ``reset`` at each episode's start."""
 
-    def __init__(self, model: mujoco.MjModel) -> None:
+    def __init__(self, model: mujoco.MjModel, scene: LidScene = LidScene()) -> None:
         eq = model.equality(GRIP).id
         self._hinge = int(model.joint(_LID).qposadr[0])
+        self._slides = [int(model.joint(f"{_HANDLE}_{n}").qposadr[0]) for n in ("along", "across")]
         self._handle, self._hand = int(model.eq_obj1id[eq]), int(model.eq_obj2id[eq])
+        self._limit = scene.slide - 1e-3
+        self.lost = False
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        """A new episode (nothing to forget)."""
+        """A new episode: the handle in the hand."""
+        self.lost = False
 
     def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> bool:
-        return bool(np.degrees(data.qpos[self._hinge]) >= OPEN_DEG
-                    and np.linalg.norm(data.site_xpos[self._hand] - data.site_xpos[self._handle]) <= STRETCH_M)
+        self.lost = self.lost or bool(np.any(np.abs(data.qpos[self._slides]) >= self._limit)) or \
+            float(np.linalg.norm(data.site_xpos[self._hand] - data.site_xpos[self._handle])) > STRETCH_M
+        return not self.lost and bool(np.degrees(data.qpos[self._hinge]) >= OPEN_DEG)
 
 
 def outcome(model: mujoco.MjModel, frame_t: np.ndarray, frame_qpos: np.ndarray, motion_end_s: float,

@@ -247,7 +247,7 @@ def compile_schedule(perturbations: Sequence[Perturbation], placement: Placement
             if sched.release_eq >= 0 or p.start_s < 0:
                 raise SimError("release: one per run, at start_s >= 0")
             sched.release_eq = (equality_ids or {})[p.equality]
-            sched.release_step = int(round(p.start_s / control_dt))
+            sched.release_step = int(round(p.start_s / control_dt))   # after the run's end: never
         elif type(p) is not Perturbation:
             raise SimError(f"unknown perturbation {p!r}")
     if placement.chart is not None and not np.array_equal(goal_turn, np.eye(3)):

@@ -21,7 +21,7 @@ of the spot. A failure is named in one word: ``collision`` (before the release t
 out of the hand by more than ``SLIP_M``: it struck the shelf), ``not released`` (still where the hand
 holds it, off the shelf), ``toppled`` (tilted past ``UPRIGHT_DEG`` or fell off the shelf), ``missed
 the spot``; ``sim.run.tasks`` adds ``stopped short`` (the tool ended away from its goal). ``PlaceCheck``
-is the same predicate online, on the current state, for a dm_env task's reward.
+checks the same conditions online, at every step, for a dm_env task's reward.
 """
 
 from __future__ import annotations
@@ -167,27 +167,35 @@ def hold_bottle(robot: RobotModel, axis: np.ndarray, model: mujoco.MjModel, data
 
 class PlaceCheck:
     """The placement's success, online, on a simulation's current state (what a dm_env task's reward
-    reads): true when the grip is open and the bottle rests (slower than ``REST_SPEED_M_S``) on the shelf
-    within ``UPRIGHT_DEG`` of upright and ``SPOT_M`` of ``spot`` (3,), world. The call after each step
-    (the bodies' poses computed); ``reset`` is for the protocol (it keeps no state)."""
+    reads): the conditions of ``outcome`` checked at every step, not once after the release: true when
+    the grip is open, the bottle never moved more than ``SLIP_M`` in the hand while held, and it rests
+    (slower than ``REST_SPEED_M_S``) on the shelf within ``UPRIGHT_DEG`` of upright and ``SPOT_M`` of
+    ``spot`` (3,), world. ``reset`` at each episode's start; the call after each step (poses computed)."""
 
-    def __init__(self, model: mujoco.MjModel, spot: np.ndarray, scene: PlaceScene = PlaceScene()) -> None:
+    def __init__(self, model: mujoco.MjModel, robot: RobotModel, axis: np.ndarray, spot: np.ndarray,
+                 scene: PlaceScene = PlaceScene()) -> None:
         self.spot, self.scene = np.asarray(spot, dtype=np.float64), scene
         self._grip = model.equality(GRIP).id
+        site = model.site(robot.mj_ee_site)
+        self._tool = int(site.bodyid[0])
+        self._held, _ = _in_tool(axis, site.pos, site.quat, scene)
         j = model.joint(_BOTTLE)
         self._a, self._v = int(j.qposadr[0]), int(j.dofadr[0])
         self._rot = np.zeros(9)
+        self.slipped = False
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        """A new episode (nothing to forget)."""
+        """A new episode: nothing slipped yet."""
+        self.slipped = False
 
     def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> bool:
-        if data.eq_active[self._grip]:
-            return False
         a = self._a
+        if data.eq_active[self._grip]:
+            held = data.xpos[self._tool] + data.xmat[self._tool].reshape(3, 3) @ self._held
+            self.slipped = self.slipped or float(np.linalg.norm(data.qpos[a:a + 3] - held)) > SLIP_M
+            return False
         mujoco.mju_quat2Mat(self._rot, data.qpos[a + 3:a + 7])
-        bottom = data.qpos[a:a + 3]
-        return bool(_standing(bottom, self._rot[8], self.spot, self.scene)
+        return bool(not self.slipped and _standing(data.qpos[a:a + 3], self._rot[8], self.spot, self.scene)
                     and np.linalg.norm(data.qvel[self._v:self._v + 3]) < REST_SPEED_M_S)
 
 

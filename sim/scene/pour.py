@@ -22,7 +22,7 @@ Success (``outcome``): every ball stays in the cup until its tilt first passes `
 least ``SUCCESS_BALLS`` rest inside the bowl ``SETTLE_AFTER_S`` after the motion ends. A failure is named
 in one word: ``spilled early``, ``missed the bowl``, ``not poured`` (the cup never tilted far enough);
 ``sim.run.tasks`` adds ``stopped short`` (the tool ended away from its pouring pose). ``PourCheck``:
-the same predicate online, for a dm_env task's reward.
+the same conditions checked online, at every step, for a dm_env task's reward.
 """
 
 from __future__ import annotations

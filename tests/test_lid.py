@@ -82,9 +82,10 @@ def test_a_lid_task_refuses_what_it_cannot_do() -> None:
 
 @pytest.mark.usefixtures("one_thread")
 def test_the_learned_opening_swings_the_lid_open_pushed_or_not(tmp_path: Path) -> None:
-    runs = sim.run_job(sim.ArmJob(robot="panda", demos="robottasks:openbox", learners=("tracking",), task="lid",
-                                  scenarios=("none", "push"),
-                                  videos=False, plots=False, quiet=True, out=str(tmp_path))).results
+    job = sim.ArmJob(robot="panda", learners=("tracking",), task="lid", scenarios=("none", "push"),
+                     videos=False, plots=False, quiet=True, out=str(tmp_path))
+    assert job.demo_spec == "robottasks:openbox"                  # a task's own demos by default
+    runs = sim.run_job(job).results
     for r in runs:
         task = r.metrics["task"]
         assert task["success"] and task["angle_deg"] > 80 and task["stretch_m"] < 0.005, task

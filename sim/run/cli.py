@@ -230,14 +230,12 @@ def job_from_args(args: argparse.Namespace, command: Sequence[str] = ()) -> ArmJ
     """The ``ArmJob`` of parsed flags."""
     from lfd import commands as lfd_commands
     from sim.run.job import ArmJob, PushSpec
-    from sim.run.tasks import TASK_DEMOS
 
     learners = None if args.learner is None else (
         ("node", "contraction") if args.learner == "both"
         else tuple(s.strip() for s in args.learner.split(",") if s.strip()))
     return ArmJob(
-        robot=args.robot, ee_frame=args.ee_frame, learners=learners, model=args.model,
-        demos=args.demos or TASK_DEMOS.get(args.task or "", "spiral"),
+        robot=args.robot, ee_frame=args.ee_frame, learners=learners, model=args.model, demos=args.demos,
         clean=lfd_commands.demo_clean(args),
         scenarios=args.perturb, seed=args.seed, out=args.out, overwrite=args.overwrite, json=args.json,
         video=args.video, videos=not args.no_video, plots=not args.no_plots, camera=args.camera, size=args.size,

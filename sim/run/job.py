@@ -14,7 +14,7 @@ from lfd.errors import ConfigError
 from lfd.retime import check_speed
 from sim.media.camera import CameraSpec
 from sim.run.experiment import SCENARIOS, scenario
-from sim.run.tasks import TASKS
+from sim.run.tasks import TASK_DEMOS, TASKS
 from sim.scene.perturbations import Perturbation, Push
 
 #: the learners a job runs when it names none (and the panels of a side-by-side video)
@@ -68,7 +68,9 @@ class ArmJob:
     through ``robots.controller.ArmController`` (the controller a real arm runs) with its jerk-limited
     limiter of the joint-velocity stream (``robots.limiter``); ``limits`` is a JSON file of the arm's
     limits (``robots.limits.load_limits``; default the robot's own). ``task`` runs a task with objects
-    (``sim.run.tasks``: ``pour``) and ``target`` puts its object (the bowl) there, m, robot base frame.
+    (``sim.run.tasks``: ``pour``, ``place``, ``lid``) and ``target`` puts its object (the bowl, the
+    shelf's spot) there, m, robot base frame. ``demos`` None runs the task's RoboTasks9 demos
+    (``sim.run.tasks.TASK_DEMOS``), or the spiral without a task (``demo_spec``).
     ``held_out`` K trains every learner on every demo but demo K and runs from demo K's start.
     ``obstacles`` are
     ``lfd.obstacles.parse_obstacle`` texts, in task units; with
@@ -81,7 +83,7 @@ class ArmJob:
     ee_frame: str | None = None
     learners: tuple[str, ...] | None = None
     model: str | None = None
-    demos: str = "spiral"
+    demos: str | None = None
     clean: bool | frozenset[str] = True
     scenarios: tuple[str, ...] = ("none", "offset", "push")
     seed: int = 0
@@ -122,6 +124,11 @@ class ArmJob:
     iters: int | None = None
     quiet: bool = False
     command: tuple[str, ...] = field(default_factory=lambda: tuple(sys.argv))
+
+    @property
+    def demo_spec(self) -> str:
+        """The demos the job runs: ``demos``, or the task's RoboTasks9 demos, or ``spiral``."""
+        return self.demos or TASK_DEMOS.get(self.task or "", "spiral")
 
     def check(self) -> None:
         """Raise ``ConfigError`` for options that contradict each other or are out of range."""

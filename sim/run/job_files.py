@@ -74,7 +74,7 @@ class JobFiles:
         self.out = Path(job.out) if job.out else fresh_dir(
             Path("out") / f"demo_arm_{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}")
         self.json_path = Path(job.json) if job.json else self.out / "metrics.json"
-        self.outputs = OutputSet(self.out, job.overwrite, {"model file": job.model, "demo file": job.demos})
+        self.outputs = OutputSet(self.out, job.overwrite, {"model file": job.model, "demo file": job.demo_spec})
         self.outputs.plan([self.json_path], "--json")
         self.plan = self._plan(learners)
         for path in self.plan.every():

@@ -104,7 +104,7 @@ def plan_job(job: ArmJob) -> JobPlan:
     trained_on = _held_out(job, demos)
     task = None if job.task is None else plan_task(job.task, trained_on, job.target)
     if task is not None:   # the goal follows the object; the pose's orientation is the demos'
-        task, shift = shifted(task, job.demos, job.shift)   # a lid's box moves with its demos
+        task, shift = shifted(task, job.demo_spec, job.shift)   # a lid's box moves with its demos
         job = dataclasses.replace(job, goal=tuple(float(v) for v in task.goal), table=True, shift=shift)
     obstacles = [parse_obstacle(text, demos.dim) for text in job.obstacles]
     vias = [parse_via(text, demos.dim) for text in job.via]
@@ -133,7 +133,7 @@ def _held_out(job: ArmJob, demos: DemoSet) -> DemoSet:
 
 def _demos(job: ArmJob) -> DemoSet:
     """The job's demos, cleaned as it asks; each note on stderr (a loud one even when quiet)."""
-    demos = lfd.load_demos(job.demos, clean=job.clean)
+    demos = lfd.load_demos(job.demo_spec, clean=job.clean)
     for note in demos.notes:
         if not job.quiet or loud_note(note):
             print(f"note: {note}", file=sys.stderr)

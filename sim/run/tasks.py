@@ -24,7 +24,7 @@ import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Self, cast
 
 import mujoco
 import numpy as np
@@ -53,8 +53,18 @@ STOPPED_SHORT_M = 0.005
 MAX_SHELF_M = 1.0
 
 
+class _Timed:
+    """What every planned task shares: the motion's end ``motion_end_s`` (s), re-timed for the run."""
+
+    motion_end_s: float
+
+    def timed(self, motion_end_s: float) -> Self:
+        """The same task with the motion ending at ``motion_end_s`` (the run's demo at its speed)."""
+        return dataclasses.replace(cast(Any, self), motion_end_s=float(motion_end_s))
+
+
 @dataclass(frozen=True)
-class PourTask:
+class PourTask(_Timed):
     """A planned pour: the cup's opening ``axis`` (tool frame, (3,)), the ``bowl`` (world, (3,)), its
     ``nominal`` place, the ``goal`` position of the tool (world, (3,)), the motion's end ``motion_end_s``
     (s) and the ``scene``'s sizes."""
@@ -67,14 +77,7 @@ class PourTask:
     scene: pour.PourScene = pour.PourScene()
     name = "pour"
 
-    @property
-    def target(self) -> np.ndarray:
-        """Where the object stands, shape (3,), world, m."""
-        return self.bowl
 
-    def timed(self, motion_end_s: float) -> PourTask:
-        """The same task with the motion ending at ``motion_end_s`` (the run's demo at its speed)."""
-        return dataclasses.replace(self, motion_end_s=float(motion_end_s))
 
     def with_scene(self, robot: RobotModel) -> RobotModel:
         """``robot`` (loaded with a table) with the pour's objects (``sim.scene.pour.build``)."""
@@ -105,7 +108,7 @@ class PourTask:
 
 
 @dataclass(frozen=True)
-class PlaceTask:
+class PlaceTask(_Timed):
     """A planned placement: the bottle's ``axis`` (tool frame, (3,)), its ``spot`` (world, (3,)), the
     ``nominal`` spot, the tool's ``goal`` position (world, (3,)), the release ``motion_end_s`` (s) and
     the ``scene``'s sizes."""
@@ -118,14 +121,7 @@ class PlaceTask:
     scene: place.PlaceScene = place.PlaceScene()
     name = "place"
 
-    @property
-    def target(self) -> np.ndarray:
-        """Where the object stands, shape (3,), world, m."""
-        return self.spot
 
-    def timed(self, motion_end_s: float) -> PlaceTask:
-        """The same task with the motion ending (the grip opening) at ``motion_end_s``."""
-        return dataclasses.replace(self, motion_end_s=float(motion_end_s))
 
     def with_scene(self, robot: RobotModel) -> RobotModel:
         """``robot`` (loaded with a table) with the bottle and the shelf (``sim.scene.place.build``)."""
@@ -159,7 +155,7 @@ class PlaceTask:
 
 
 @dataclass(frozen=True)
-class LidTask:
+class LidTask(_Timed):
     """A planned opening: the fitted ``hinge`` (world, (3,)), its unit ``axis`` (3,), the lid's ``length``
     (m), the demos' mean ``start`` (3,) (where the closed lid points), the tool's ``goal`` position
     (world, (3,)), the motion's end ``motion_end_s`` (s) and the ``scene``'s sizes."""
@@ -173,19 +169,12 @@ class LidTask:
     scene: lid.LidScene = lid.LidScene()
     name = "lid"
 
-    @property
-    def target(self) -> np.ndarray:
-        """Where the object stands (the hinge), shape (3,), world, m."""
-        return self.hinge
 
     @property
     def nominal(self) -> np.ndarray:
         """The hinge: the box stays where it was recorded."""
         return self.hinge
 
-    def timed(self, motion_end_s: float) -> LidTask:
-        """The same task with the motion ending at ``motion_end_s``."""
-        return dataclasses.replace(self, motion_end_s=float(motion_end_s))
 
     def with_scene(self, robot: RobotModel) -> RobotModel:
         """``robot`` (loaded with a table) with the box and its lid (``sim.scene.lid.build``)."""

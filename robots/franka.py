@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import re
 import time
 from collections.abc import Callable
@@ -273,7 +274,16 @@ def stream_joint_velocities(host: str, controller: Controller, duration_s: float
     fr = _pylibfranka()
     wall0 = time.perf_counter()
     robot = _connect(fr, host, realtime)
-    return _stream(fr, robot, controller, duration_s, wall0, wall_clock)
+    # this process ahead of other work where allowed, as the server is (a missed 1 kHz cycle makes the
+    # FCI extrapolate the command, which a reflex can follow); its own priority back afterwards
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    with contextlib.suppress(OSError):
+        os.setpriority(os.PRIO_PROCESS, 0, min(before, -10))
+    try:
+        return _stream(fr, robot, controller, duration_s, wall0, wall_clock)
+    finally:
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, 0, before)
 
 
 def min_jerk_plan(q_start: np.ndarray, q_goal: np.ndarray, max_velocity: float = 0.5, max_acceleration: float = 2.0,

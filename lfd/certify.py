@@ -42,6 +42,7 @@ from lfd.field import FieldKind, StateSpace, VelocityField, by_kind
 from lfd.pose_contraction import PAIRS, check_pose_contraction
 from lfd.stability import ROUND_OFF, check_lyapunov
 from lfd.threads import torch_threads
+from lfd.transient import structural_conditions, transient_growth
 
 DEFAULT_SAMPLES = 20_000
 DEFAULT_TOLERANCE = 0.0    # extra absolute slack (1/s) on top of the round-off slack Eq. (K2)
@@ -84,6 +85,9 @@ class Certificate:
         numerically positive definite
     equilibria : ``lfd.equilibria.find_equilibria`` on the box (None when not searched); a spurious
         attractor, a closed orbit or an escaping start there makes the verdict "not certified"
+    structural, growth : for a field built as a bounded flow of a contracting latent field, the
+        theorem's conditions read from its weights and Eq. (18) with its constant sampled on the box and
+        far out (``lfd.transient``); either failing makes the verdict "not certified"
     lyapunov : for a field with a stated Lyapunov function, ``lfd.stability.check_lyapunov``; then
         ``metric`` is "lyapunov", ``rate`` the decay rate of Eq. (L3), ``worst`` the largest sampled
         dV/dt / (alpha(V) V) against ``bound`` -1, ``overshoot`` s_hi / s_lo and the metric
@@ -124,6 +128,8 @@ class Certificate:
     pose: dict[str, Any] | None = None
     equilibria: EquilibriumReport | None = None
     lyapunov: dict[str, Any] | None = None
+    structural: dict[str, Any] | None = None
+    growth: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
@@ -158,6 +164,18 @@ class Certificate:
         if self.n_invalid:
             lines.append(f"  {self.n_invalid} points where the field or its metric is not finite or the "
                          f"metric is not positive definite")
+        if self.structural is not None:
+            c = self.structural
+            ridge = "" if c["ridge_min"] is None else f", smallest ridge gain {c['ridge_min']:.3g} (>= 0)"
+            lines.append(f"  from the weights: max eig sym(A) + rate I = {c['sym_a_max']:.3g} (<= 0){ridge}, "
+                         f"flow s_hi/s_lo = {c['flow_ratio']:.4g} (<= {c['sqrt_kappa']:.4g}): "
+                         + ("the theorem's conditions hold" if c["holds"] else "A CONDITION FAILS"))
+        if self.growth is not None:
+            g = self.growth
+            lines.append(f"  Eq. (18) sampled: {g['pairs']} pairs on the box and {g['pairs']} at {g['far']:g} box "
+                         f"sizes, split along M's top eigenvector, {g['horizon_s']:.3g} s: worst |dx(t)| e^(rate t) "
+                         f"/ |dx(0)| {g['worst_near']:.4g} near, {g['worst_far']:.4g} far, against sqrt(b/a) = "
+                         f"{g['overshoot']:.4g}" + ("" if g["holds"] else " (EXCEEDED)"))
         if self.pose is not None:
             p = self.pose
             state = ("holds" if p["holds"] else "FAILS") if p["checked"] else "not stated (reported only)"
@@ -363,6 +381,7 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
             cert = _certify_lyapunov(field, lo, hi, samples)
         else:
             cert = by_kind(field, _CERTIFIERS)(field, lo, hi, samples, float(rate), tolerance)
+    cert = _check_theorem(field, cert, lo, hi)
     if field.space is StateSpace.POSE:
         pose = check_pose_contraction(field, PAIRS if pose_pairs is None else int(pose_pairs))
         cert = replace(cert, pose=pose)
@@ -378,6 +397,26 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
     return replace(cert, equilibria=found, verdict="not certified", certified=False,
                    proof=f"{', '.join(found.failures())} besides the goal: the goal does not attract every start "
                          f"(a counterexample)")
+
+
+def _check_theorem(field: VelocityField, cert: Certificate, lo: np.ndarray, hi: np.ndarray) -> Certificate:
+    """``cert`` with the structural conditions and the sampled Eq. (18) of a field built as a bounded flow of
+    a contracting latent field (``lfd.transient``); unchanged for any other field."""
+    structural = structural_conditions(field)
+    if structural is None:
+        return cert
+    with torch_threads(1):
+        growth = transient_growth(field, lo, hi)
+    cert = replace(cert, structural=structural, growth=growth)
+    if not cert.certified:
+        return cert
+    if not structural["holds"]:
+        return replace(cert, verdict="not certified", certified=False,
+                       proof="a condition of the theorem fails in the weights (docs/equations.md, Eq. (N1))")
+    if not growth["holds"]:
+        return replace(cert, verdict="not certified", certified=False,
+                       proof="a sampled pair of trajectories grows apart by more than sqrt(b/a) (a counterexample)")
+    return cert
 
 
 def _certify(field: VelocityField, lo: np.ndarray, hi: np.ndarray, samples: int, rate: float,

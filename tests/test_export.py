@@ -20,7 +20,8 @@ pytestmark = [pytest.mark.usefixtures("one_thread"),
 
 TOL = 1e-6     # the export reproduces field(x) to 1e-6 (user units/s)
 LEARNERS = {"node": {"iterations": 10, "hidden": (16, 16)}, "contraction": {"iterations": 5},
-            "stable_node": {"iterations": 10, "hidden": (16, 16), "lyapunov_iterations": 5}}
+            "stable_node": {"iterations": 10, "hidden": (16, 16), "lyapunov_iterations": 5},
+            "contracting_node": {"iterations": 10}}
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +53,7 @@ def export(model: Path, fmt: str, out: Path, capsys: pytest.CaptureFixture[str],
     return code, capsys.readouterr().err
 
 
-@pytest.mark.parametrize("learner", ["node", "contraction", "contraction3d", "stable_node"])
+@pytest.mark.parametrize("learner", ["node", "contraction", "contraction3d", "stable_node", "contracting_node"])
 def test_torchscript_reproduces_the_field(learner: str, models, tmp_path: Path, capsys) -> None:
     path, field = models[learner]
     code, err = export(path, "torchscript", tmp_path / "f.ts", capsys)
@@ -107,7 +108,8 @@ def test_onnx_without_the_package_is_a_clean_error(models, tmp_path: Path, capsy
     assert code == 2 and "pip install 'lfd-arm[export]'" in err and len(err.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("learner, n", [("node", 101), ("contraction", 101), ("contraction3d", 15)])
+@pytest.mark.parametrize("learner, n", [("node", 101), ("contraction", 101), ("contraction3d", 15),
+                                        ("contracting_node", 101)])
 def test_npz_grid_reproduces_the_field(learner: str, n: int, models, tmp_path: Path, capsys) -> None:
     path, field = models[learner]
     code, err = export(path, "npz-grid", tmp_path / "g.npz", capsys, "--grid", str(n))

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from cli_runs import run_main
 
-from sim.studies import obstacles, robottasks, scaling
+from sim.studies import obstacles, recovery, robottasks, scaling
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("one_thread")]
 
@@ -58,6 +58,8 @@ def test_scaling_quick_writes_the_dmp_curves(tmp_path: Path, capsys: pytest.Capt
     (obstacles.main, ["--placements", "0"], "panda_obstacles: error: --placements must be between 1 and 1000"),
     (robottasks.main, ["--report", "/proc/no/such.md", "--quick"], "robottasks_arm: error: /proc/no/such.md"),
     (robottasks.main, ["--fast"], "robottasks_arm: error: unrecognized arguments: --fast"),
+    (recovery.main, ["--report", "/proc/no/such.md"], "recovery_tradeoff: error: /proc/no/such.md"),
+    (recovery.main, ["--rates", "1"], "recovery_tradeoff: error: unrecognized arguments: --rates"),
 ])
 def test_bad_options_give_one_line_and_exit_2(main: object, argv: list[str], message: str,
                                               capsys: pytest.CaptureFixture[str]) -> None:

@@ -99,7 +99,8 @@ class LasaSuite(Suite):
     units = LASA_SHAPES
     quick_units = QUICK_UNITS
     protocol_type = proto.LasaProtocol
-    quick_options = {"contraction": {"iterations": 60}, "node": {"iterations": 200}}
+    quick_options = {"contraction": {"iterations": 60}, "node": {"iterations": 200},
+                     "contracting_node": {"iterations": 100}}
     n_demos = proto.N_LASA_DEMOS
     space = POSITIONS
     metrics = METRICS

@@ -27,7 +27,7 @@ __all__ = ["ObstacleCell", "SHAPES", "LEARNERS", "HORIZON", "GOAL_RADIUS_MM", "m
 
 #: the demo sets of the sweep: two spirals and five LASA shapes
 SHAPES = ("spiral", "spiral3d", "lasa:Angle", "lasa:CShape", "lasa:GShape", "lasa:Sshape", "lasa:Snake")
-LEARNERS = ("node", "stable_node", "contraction", "tracking")
+LEARNERS = ("node", "stable_node", "contraction", "contracting_node", "tracking")
 #: rollout length, x the demos' duration
 HORIZON = 3.0
 #: a start converged when its final position lies within this of the goal

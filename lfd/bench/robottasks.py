@@ -178,6 +178,7 @@ class RobotTasksSuite(Suite):
     quick_units = QUICK_UNITS
     protocol_type = RobotTasksProtocol
     quick_options = {"contraction": {"iterations": 60}, "node": {"iterations": 200},
+                     "contracting_node": {"iterations": 100},
                      "dmp": {"int_dt": 1 / 60}}   # the DMP's orientation at 60 Hz
     n_demos = N_DEMOS
     space = POSES

@@ -16,7 +16,7 @@ from lfd.demos import DemoSet
 from lfd.io import atomic_write
 
 COLORS: dict[str, str] = {"node": "tab:purple", "contraction": "tab:red", "tracking": "tab:green",
-                          "stable_node": "tab:blue", "dmp": "tab:orange"}
+                          "stable_node": "tab:blue", "contracting_node": "tab:brown", "dmp": "tab:orange"}
 
 
 def task_records(records: list[dict[str, Any]], task: str, learners: list[str]) -> dict[str, dict[str, Any]]:

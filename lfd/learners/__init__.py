@@ -23,6 +23,7 @@ _REGISTRY: dict[str, str] = {
     "contraction": "lfd.learners.contraction:ContractionLearner",
     "tracking": "lfd.learners.tracking:TrackingLearner",
     "stable_node": "lfd.learners.stable_node:StableNodeLearner",
+    "contracting_node": "lfd.learners.contracting_node:ContractingNodeLearner",
 }
 LEARNERS: tuple[str, ...] = tuple(_REGISTRY)
 

@@ -188,13 +188,21 @@ class ContractionModule(nn.Module):
         if self.factored:
             y, solve = self.flow.forward_with_inverse_jacobian(x1)
             y, y_star = y[:-1], y[-1:]
-            v = (y - y_star) @ self.latent_matrix().T          # A (phi(x) - y*)
+            v = self.latent_velocity(y, y_star)                # h(phi(x)), Eq. (C2)
             return solve(torch.cat([v, v.new_zeros(1, self.dim)]))[:-1], y, y_star, None
         y, jac = self.flow.forward_with_jacobian(x1)
         assert jac is not None
         y, y_star, jac = y[:-1], y[-1:], jac[:-1]
-        v = (y - y_star) @ self.latent_matrix().T              # A (phi(x) - y*)
+        v = self.latent_velocity(y, y_star)                    # h(phi(x)), Eq. (C2)
         return torch.linalg.solve(jac, v.unsqueeze(-1)).squeeze(-1), y, y_star, jac
+
+    def latent_velocity(self, y: torch.Tensor, y_star: torch.Tensor) -> torch.Tensor:
+        """The latent field h(y) = A (y - y*) of Eq. (C2), shape (B, d), at y, shape (B, d)."""
+        return (y - y_star) @ self.latent_matrix().T
+
+    def latent_lipschitz(self) -> torch.Tensor:
+        """An upper bound of Lip(h) = sup |J_h| on all of R^d (here |A|_2), a scalar tensor."""
+        return torch.linalg.matrix_norm(self.latent_matrix(), ord=2)
 
     def metric(self, x: torch.Tensor) -> torch.Tensor:
         """M_n(x) = J_phi(x)' J_phi(x), shape (B, d, d), for x : tensor, shape (B, d)."""
@@ -249,7 +257,7 @@ def lipschitz_bound(module: ContractionModule, grid: int = 4000) -> float:
         return math.inf
     layers = module.flow.bounds()
     with torch.no_grad():
-        a_norm = float(torch.linalg.matrix_norm(module.latent_matrix(), ord=2)) * (1 + 1e-12)
+        a_norm = float(module.latent_lipschitz()) * (1 + 1e-12)   # Lip(h): |A| for Eq. (C2)
     hi_s = np.array([layer.sigma_hi for layer in layers])
     s_lo = float(np.prod([layer.sigma_lo for layer in layers]))
     s_hi = float(np.prod(hi_s))

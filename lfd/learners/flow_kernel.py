@@ -165,11 +165,14 @@ def _solve_small(jac: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:  # pr
 @numba.njit(cache=True, fastmath=False, nogil=True)
 def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
             gen: np.ndarray, w1b: np.ndarray, w2: np.ndarray, inv_r2: float,
-            a: np.ndarray, y_star: np.ndarray, goal: np.ndarray, scale: float, vec: np.ndarray,
+            a: np.ndarray, y_star: np.ndarray, rw: np.ndarray, rb: np.ndarray, rd: np.ndarray, rt: np.ndarray,
+            goal: np.ndarray, scale: float, vec: np.ndarray,
             mat: np.ndarray, th: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """out (d,) <- scale f_n((x - goal) / scale) of Eq. (C3) at x (d,): y = phi(x_n) and J_phi through
     the swirl and residual blocks (n_pairs of each; arrays as ``contraction_point_fn`` packs them),
-    then J_phi^-1 A (y - y*), back in user units (goal = 0 and scale = 1: normalised units).
+    then J_phi^-1 h(y), back in user units (goal = 0 and scale = 1: normalised units), with the latent
+    field h(y) = A (y - y*) - W' (d * (tanh(W y + c) - t*)) of Eq. (N1) (rw = W (H, d), rb = c (H,),
+    rd = d (H,), rt = t* = tanh(W y* + c) (H,); H = 0 gives the linear field of Eq. (C2)).
 
     vec (5, d), mat (4, d, d) and th (hidden,) are scratch, allocated once per evaluator; the caller
     allocates out (a numpy array returned from compiled code costs more to hand back)."""
@@ -188,6 +191,13 @@ def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np
         for j in range(d):
             s += a[i, j] * (y[j] - y_star[j])
         b[i] = s
+    for k in range(rw.shape[0]):
+        z_k = rb[k]
+        for j in range(d):
+            z_k += rw[k, j] * y[j]
+        g = rd[k] * (math.tanh(z_k) - rt[k])
+        for i in range(d):
+            b[i] -= g * rw[k, i]
     _solve_small(jac, b, out)
     for i in range(d):
         out[i] *= scale
@@ -208,6 +218,18 @@ def _flow_kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho
             jac[i, j] = 1.0 if i == j else 0.0
     flow_layers(y, jac, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, vec[0], vec[1], vec[2], th,
                 mat[0], mat[1], mat[2])
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True)
+def _ridge_at(rw: np.ndarray, rb: np.ndarray, y: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """tanh(W y + c) (H,), summed in the kernel's order, so that h(y*) = 0 to the last bit."""
+    out = np.empty(rw.shape[0])
+    for k in range(rw.shape[0]):
+        z_k = rb[k]
+        for j in range(y.shape[0]):
+            z_k += rw[k, j] * y[j]
+        out[k] = math.tanh(z_k)
+    return out
 
 
 def pack_flow(params: list[dict[str, Any]], d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -249,12 +271,14 @@ def flow_point(params: list[dict[str, Any]], x: np.ndarray) -> tuple[np.ndarray,
 
 
 def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, goal: np.ndarray | None = None,
-                         scale: float = 1.0) -> Callable[[np.ndarray], np.ndarray]:
+                         scale: float = 1.0, ridge: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                         ) -> Callable[[np.ndarray], np.ndarray]:
     """x (d,) -> scale f_n((x - goal) / scale) (d,) of Eq. (C3) through the compiled kernel: the field
     in user units given the normalisation (goal, scale), in normalised units by default.
 
     params : ``BoundedFlow.numpy_params()``; a : A of Eq. (C2), (d, d); goal : (d,) (default 0);
-    scale : > 0. y* = phi(0) comes from ``flow_point``, the same operations as the kernel's phi, so
+    scale : > 0; ridge : (W (H, d), c (H,), d (H,)) of the contracting NODE's latent field, Eq. (N1)
+    (default: none, Eq. (C2)). y* = phi(0) comes from ``flow_point``, the same operations as the kernel's phi, so
     the goal is an equilibrium to the last bit. The kernel is compiled or loaded here, not in the
     first control step. The evaluator owns scratch memory: one evaluator is for one thread.
     """
@@ -262,6 +286,11 @@ def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, goal: np.n
     d = a.shape[0]
     centers, theta, inv_2rho2, gen, w1b, w2, inv_r2 = pack_flow(params, d)
     y_star = flow_point(params, np.zeros(d))[0]
+    if ridge is None:
+        rw, rb, rd = np.zeros((0, d)), np.zeros(0), np.zeros(0)
+    else:
+        rw, rb, rd = (np.ascontiguousarray(r, dtype=np.float64) for r in ridge)
+    rt = _ridge_at(rw, rb, y_star)
     goal_ = np.zeros(d) if goal is None else np.ascontiguousarray(goal, dtype=np.float64).copy()
     scale_ = float(scale)
     vec, mat, th = np.empty((5, d)), np.empty((4, d, d)), np.empty(w1b.shape[1])   # the kernel's scratch
@@ -271,7 +300,8 @@ def contraction_point_fn(params: list[dict[str, Any]], a: np.ndarray, goal: np.n
         if type(xn) is not np.ndarray or xn.dtype is not f64 or not xn.flags.c_contiguous:
             xn = np.ascontiguousarray(xn, dtype=np.float64)
         out = empty(d)
-        k(xn, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, a, y_star, goal_, scale_, vec, mat, th, out)
+        k(xn, centers, theta, inv_2rho2, gen, w1b, w2, inv_r2, a, y_star, rw, rb, rd, rt, goal_, scale_, vec, mat,
+          th, out)
         return out
 
     f(np.zeros(d))

@@ -18,7 +18,7 @@ from sim.run.tasks import TASK_DEMOS, TASKS
 from sim.scene.perturbations import Perturbation, Push
 
 #: the learners a job runs when it names none (and the panels of a side-by-side video)
-DEFAULT_LEARNERS = ("node", "stable_node", "contraction")
+DEFAULT_LEARNERS = ("node", "stable_node", "contracting_node", "contraction")
 SIDE_BY_SIDE_LEARNERS = ("node", "contraction", "tracking")
 #: baselines a job runs beside the learners: the DMP (``lfd.bench.dmp_field``), fitted at every job
 BASELINES = ("dmp",)

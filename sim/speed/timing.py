@@ -18,7 +18,8 @@ __all__ = ["TRAINING", "each_call_s", "load", "median_ratio", "none_and_push", "
 #: the fields that ``field`` and ``pose`` time: learner -> training options (few iterations: the cost
 #: of one call does not depend on how well the field is trained)
 TRAINING: dict[str, dict[str, Any]] = {"node": {"iterations": 50}, "stable_node": {"iterations": 50},
-                                      "contraction": {"iterations": 30}, "tracking": {}}
+                                      "contraction": {"iterations": 30}, "contracting_node": {"iterations": 30},
+                                      "tracking": {}}
 
 
 def load() -> float:

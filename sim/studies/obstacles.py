@@ -39,7 +39,7 @@ from sim.scene.obstacles import obstacle_contacts
 __all__ = ["COST_HEADING", "Cell", "LEARNERS", "arc_point", "compute", "main", "report", "spiral3", "user_case"]
 
 PROG = "panda_obstacles"
-LEARNERS = ("contraction", "node", "stable_node", "tracking")
+LEARNERS = ("contraction", "contracting_node", "node", "stable_node", "tracking")
 SCENARIOS = ("none", "push")
 GOAL_MM = 5.0
 #: the report's hand-written section (``scripts/speed.py arm-clearance``'s measurements), kept on a rewrite

@@ -46,7 +46,7 @@ __all__ = ["episode", "main", "wilson"]
 
 PROG = "task_bench"
 PRELOAD = ("sim.run.pipeline",)
-LEARNERS: tuple[str, ...] = ("tracking", "contraction", "node", "stable_node", "dmp")
+LEARNERS: tuple[str, ...] = ("tracking", "contracting_node", "contraction", "node", "stable_node", "dmp")
 #: how far the object is moved from its nominal place, per task, m (x and y, uniform)
 SPREAD_M = {"pour": 0.10, "place": 0.05, "lid": 0.0}
 START_OFFSET_M = 0.02
@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--demos", help="the demos (a pose CSV, NPZ or bag; default the task's RoboTasks9 ones)")
     p.add_argument("--episodes", type=int, default=20, help="episodes per learner (default 20)")
     p.add_argument("--learners", default=",".join(LEARNERS),
-                   help="comma-separated (default: the four learners and the DMP)")
+                   help="comma-separated (default: every learner and the DMP)")
     p.add_argument("--split", choices=(*SPLITS, "both"), default="both", help="which split (default both)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel episodes (default: CPU count)")
     p.add_argument("--executor", default="local", choices=("local", "ray"), help="process pool or Ray (default local)")

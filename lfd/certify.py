@@ -405,15 +405,15 @@ def _check_theorem(field: VelocityField, cert: Certificate, lo: np.ndarray, hi: 
     structural = structural_conditions(field)
     if structural is None:
         return cert
+    if not structural["holds"]:     # the bound is not stated by weights that break the theorem: not sampled
+        cert = replace(cert, structural=structural)
+        return cert if not cert.certified else replace(
+            cert, verdict="not certified", certified=False,
+            proof="a condition of the theorem fails in the weights (docs/equations.md, Eq. (N1))")
     with torch_threads(1):
         growth = transient_growth(field, lo, hi)
     cert = replace(cert, structural=structural, growth=growth)
-    if not cert.certified:
-        return cert
-    if not structural["holds"]:
-        return replace(cert, verdict="not certified", certified=False,
-                       proof="a condition of the theorem fails in the weights (docs/equations.md, Eq. (N1))")
-    if not growth["holds"]:
+    if cert.certified and not growth["holds"]:
         return replace(cert, verdict="not certified", certified=False,
                        proof="a sampled pair of trajectories grows apart by more than sqrt(b/a) (a counterexample)")
     return cert

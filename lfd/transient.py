@@ -38,11 +38,15 @@ def structural_conditions(field: VelocityField) -> dict[str, Any] | None:
 
     Returns ``holds``, ``sym_a_max`` (the largest eigenvalue of sym(A) + lambda I, <= 0 needed),
     ``ridge_min`` (the smallest ridge gain, >= 0 needed; None without a ridge term), ``flow_ratio``
-    (s_hi / s_lo of the flow) and ``sqrt_kappa`` (the bound it must stay under).
+    (s_hi / s_lo of the flow) and ``sqrt_kappa`` (the bound it must stay under); for non-finite
+    weights ``holds`` is False and the values NaN.
     """
     module = getattr(field, "module", None)
     if module is None or not hasattr(module, "latent_matrix") or not hasattr(module, "flow"):
         return None
+    if not all(bool(torch.isfinite(p).all()) for p in module.parameters()):
+        return {"holds": False, "sym_a_max": math.nan, "ridge_min": None, "flow_ratio": math.nan,
+                "sqrt_kappa": math.nan}
     with torch.no_grad():
         a = module.latent_matrix().double()
         rate = float(field.config["rate"])   # the stated rate, whatever the module was built with

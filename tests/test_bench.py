@@ -101,7 +101,7 @@ REPORT_BAD_INPUT = [   # the same for the report commands, their outputs in {out
     ("tradeoff --out {out}/t.md --workers 0", "--workers must be >= 1"),
     ("obstacles --report {out}/o.md --cache {out}/cells --placements 0", "placements must be between 1 and 10000"),
     ("obstacles --report {out}/o.md --cache {out}/cells --learner node,dmp",
-     "unknown learner(s) dmp; known: node, stable_node, contraction, tracking, all"),
+     "unknown learner(s) dmp; known: node, stable_node, contraction, contracting_node, tracking, all"),
 ]
 
 

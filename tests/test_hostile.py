@@ -348,7 +348,7 @@ def test_demo_arm_checks_outputs_and_seed_first(demo_arm, tmp_path: Path,  # typ
         ([*run, "--robot", "planar", "--placement", "recorded"], "--placement recorded needs 3-D demos"),
         ([*run, "--robot", "planar", "--scale", "-1"], "--scale must be a positive number"),
         ([*run, "--learner", "node,nope"],
-         "unknown learner 'nope'; known: node, contraction, tracking, stable_node, dmp"),
+         "unknown learner 'nope'; known: node, contraction, tracking, stable_node, contracting_node, dmp"),
         ([*run, "--via", "0.1,0.2,0.3"], "--via '0.1,0.2,0.3': expected 2 finite task coordinates for 2-D demos"),
         ([*run, "--robot", "planar", "--limiter"], "'planar' has no finite joint acceleration and jerk limits"),
         ([*run, "--limits", str(tmp_path / "nan.json")], "q_max must be 7 numbers, none NaN"),

@@ -73,7 +73,7 @@ def test_the_report_counts_starts_scenes_entries_and_names_the_failing_scenes() 
     lines = report_lines(recs, 2)
     assert "| node | Eqs. (O1)-(O3) | 2 | 13/14 (92.9 %) | 1/2 | 1 | 3.5 |" in lines
     assert "| node | plain (KZB 2012) | 1 | 5/7 (71.4 %) | 0/1 | 0 | 40 |" in lines
-    assert "| lasa:Angle | 13/14 | - | - | - |" in lines and "| spiral | - | - | - | - |" in lines
+    assert "| lasa:Angle | 13/14 | - | - | - | - |" in lines and "| spiral | - | - | - | - | - |" in lines
     assert "Scenes that fail with Eqs. (O1)-(O3): 1." in lines
     assert any(line.startswith("- node on lasa:Angle, scene 1: 6/7 converged, worst 3.5 mm") for line in lines)
     assert lines[-1] == "Cell time: median 1.00 s, max 2.00 s."

@@ -61,6 +61,7 @@ def run_obstacle_sweep(placements: int, workers: int, cache: str | Path, report:
 def report_lines(recs: list[dict[str, Any]], placements: int, learners: tuple[str, ...] = ob.LEARNERS) -> list[str]:
     """The report's markdown lines (module docstring)."""
     lines = ["# Obstacles at the field level: every learner still reaches its goal", "",
+             "Protocol: not a benchmark suite's: `lfd bench obstacles`' own seeded scenes, stated below.", "",
              "Made by `lfd bench obstacles` (`lfd.bench.obstacles`). "
              f"{placements} seeded scenes (`lfd.obstacles.random_scene`: 1 to 3 spheres or boxes, 3-10 % of "
              "the extent, margins 0-4 %, a quarter of them beside the goal), dealt over "

@@ -257,13 +257,14 @@ def _fmt(value: Any, scale: float = 1.0, digits: int = 2) -> str:
 def print_table(results: Sequence[Any]) -> None:
     """One line of scores per run on stdout."""
     contacts = any("obstacle_contacts" in r.metrics for r in results)
-    print(f"{'learner':12s} {'scenario':9s} {'track mm':>9s} {'imit mm':>8s} {'dtw mm':>7s} {'goal mm':>8s} "
+    w = max([12, *(len(r.learner) for r in results)])   # the learner column fits the longest name
+    print(f"{'learner':{w}s} {'scenario':9s} {'track mm':>9s} {'imit mm':>8s} {'dtw mm':>7s} {'goal mm':>8s} "
           f"{'maxdev mm':>9s} {'recov s':>8s} {'limits':>6s} {'step us':>8s} {'RTF':>5s}"
           + (f" {'contacts':>8s}" if contacts else ""))
     for r in results:
         m = r.metrics
         push = "max_deviation_m" in m
-        print(f"{r.learner:12s} {r.scenario:9s} {_fmt(m['tracking_rmse_m'], 1e3):>9s} "
+        print(f"{r.learner:{w}s} {r.scenario:9s} {_fmt(m['tracking_rmse_m'], 1e3):>9s} "
               f"{_fmt(m['imitation_rmse_m'], 1e3):>8s} {_fmt(m['imitation_dtw_m'], 1e3):>7s} "
               f"{_fmt(m['final_goal_error_m'], 1e3):>8s} "
               f"{_fmt(m['max_deviation_m'], 1e3) if push else '-':>9s} "

@@ -202,8 +202,7 @@ def sweep(specs: list[RunSpec], out: Path, workers: int, executor: str, address:
     """Run every spec without a matching record in ``out/runs`` (all with ``fresh``); returns the
     records in spec order and run info (computed, cached, wall_s, runs_per_s, nodes: runs computed
     per node, by Ray node id or host name)."""
-    runs = out / "runs"
-    runs.mkdir(parents=True, exist_ok=True)
+    runs = out / "runs"     # made by the first record written (``write_json``): an early Ctrl-C leaves nothing
     records: list[dict[str, Any] | None] = []
     todo: list[int] = []
     for i, s in enumerate(specs):

@@ -149,6 +149,7 @@ def report(recs: list[dict], placements: int, learners: tuple[str, ...] = LEARNE
     hand = recs[0]["hand_margin_m"] if recs else float("nan")
     scale = recs[0]["scale_m_per_unit"] if recs else float("nan")
     lines = ["# Whole-arm safety on the Panda: obstacle scenes, every learner, with and without a push", "",
+             "Protocol: not a benchmark suite's: the Panda obstacle study's own seeded scenes, stated below.", "",
              f"Made by `scripts/panda_obstacles.py`. {placements} scenes on a user's 3-demo spiral "
              f"(placed at {scale:.3f} m per unit): scene 0 is the user's case (a sphere of 6 % of the extent "
              "on the path, no margin), the others `lfd.obstacles.random_scene` (1-3 spheres or boxes, "

@@ -152,7 +152,7 @@ def curriculum_stages(history: dict[str, Any], config: dict[str, Any] | None) ->
                           seg=int(config["seg"]), seg_start=int(config["seg_start"]))
     stages: list[tuple[int, int]] = []
     for k in range(n):
-        s = segment_length(cfg, k)  # type: ignore[arg-type]
+        s = segment_length(cfg, k)
         if not stages or stages[-1][1] != s:
             stages.append((k + 1, s))
     return stages if len(stages) > 1 else []

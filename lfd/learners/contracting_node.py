@@ -36,7 +36,6 @@ from typing import Any
 import numpy as np
 import torch
 from torch import nn
-from tqdm.auto import tqdm
 
 from lfd.demos import DemoSet
 from lfd.errors import ConfigError
@@ -44,12 +43,12 @@ from lfd.learners.base import Learner
 from lfd.learners.contraction import (
     DEFAULT_MAX_CONDITION,
     ContractionField,
+    ContractionLearner,
     ContractionModule,
     RateFeasibilityWarning,
     feasible_rate,
 )
-from lfd.learners.flows import SWIRL_COMPONENTS
-from lfd.learners.node import Segments, segment_length, stratified_sample, uniform_grid
+from lfd.learners.node import shoot_segments, uniform_grid
 from lfd.learners.optim import Adam
 from lfd.threads import torch_threads
 from lfd.validate import check_bools, check_ints, check_numbers
@@ -242,11 +241,9 @@ class ContractingNodeLearner(Learner, name="contracting_node", config=Contractin
 
     @classmethod
     def parameter_count(cls, dim: int, config: ContractingNodeConfig) -> int:
-        """The contraction learner's flow and A (``ContractionLearner.parameter_count``) plus the
-        ridge term's H (d + 2)."""
-        generator = 3 if dim == 3 else 2 * dim if dim >= 4 else 0
-        per_pair = dim + 2 * SWIRL_COMPONENTS + generator + config.hidden * (2 * dim + 1) + 2
-        return config.layers * per_pair + dim * dim * (2 if config.damping else 1) + config.units * (dim + 2)
+        """The contraction learner's flow and A (``ContractionLearner.parameter_count``: the same option
+        names) plus the ridge term's H (d + 2)."""
+        return ContractionLearner.parameter_count(dim, config) + config.units * (dim + 2)  # type: ignore[arg-type]
 
     @classmethod
     def build(cls, dim: int, config: ContractingNodeConfig) -> ContractingNodeModule:
@@ -312,10 +309,36 @@ def _shooting_loss(module: ContractingNodeModule, w: torch.Tensor, hb: torch.Ten
     return loss
 
 
+class _LatentShooter:
+    """Eq. (N5) on segments and whole demos, and Adam with its cosine schedule (``shoot_segments``).
+
+    x : (N, T, d) normalised demos on uniform grids; h : (N,) their sample steps, s.
+    """
+
+    def __init__(self, module: ContractingNodeModule, x: torch.Tensor, h: torch.Tensor,
+                 config: ContractingNodeConfig) -> None:
+        self.module, self.config = module, config
+        self.opt = Adam(module.parameters(), lr=config.lr, lr_final=config.lr_final, t_max=config.iterations)
+        k_idx = np.unique(np.linspace(0, x.shape[1] - 1, config.path_points).round().astype(int))
+        self.paths = x[:, k_idx]                                                     # (N, K, d)
+        self.path_step = (h * (x.shape[1] - 1) / (config.path_samples - 1))[:, None]   # (N, 1)
+
+    def loss(self, w: torch.Tensor, hb: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        """Eq. (N5) for windows w (S, B, d) with steps hb (B, 1); tau is not needed (one RK4 step a sample)."""
+        c = self.config
+        return _shooting_loss(self.module, w, hb, self.paths, self.path_step, c.path_samples, c.path_weight)
+
+    def step(self, loss: torch.Tensor) -> None:
+        """One Adam step on ``loss``, then one step of the schedule."""
+        self.opt.zero_grad()
+        loss.backward()
+        self.opt.step()
+
+
 def _shoot(module: ContractingNodeModule, x: torch.Tensor, h: torch.Tensor, config: ContractingNodeConfig,
            progress: bool) -> dict[str, Any]:
-    """Adam on the multiple-shooting loss (module docstring), in float64; the module ends at its best
-    iterate among those at the last segment length reached (losses only compare at equal length).
+    """Adam on Eq. (N5) in float64, by ``lfd.learners.node.shoot_segments`` after starting A at the
+    least-squares contracting fit (``init_latent_from_data``).
 
     x : (N, T, d) normalised demos on uniform grids; h : (N,) their sample steps, s.
     """
@@ -324,46 +347,5 @@ def _shoot(module: ContractingNodeModule, x: torch.Tensor, h: torch.Tensor, conf
     with torch.no_grad():
         v_all = ((x[:, 1:] - x[:, :-1]) / h[:, None, None]).reshape(-1, x.shape[-1])
         module.init_latent_from_data(x[:, :-1].reshape(-1, x.shape[-1]), v_all)
-    opt = Adam(module.parameters(), lr=config.lr, lr_final=config.lr_final, t_max=config.iterations)
-    gen = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,)).item()))
-    k_idx = np.unique(np.linspace(0, x.shape[1] - 1, config.path_points).round().astype(int))
-    paths = x[:, k_idx]                                                     # (N, K, d)
-    path_step = (h * (x.shape[1] - 1) / (config.path_samples - 1))[:, None]   # (N, 1)
-    losses: list[float] = []
-    best: tuple[float, int, dict[str, torch.Tensor]] | None = None
-    segments: Segments | None = None
-    interrupted = nonfinite = False
-    try:
-        with tqdm(total=config.iterations, desc="contracting_node", disable=not progress, leave=False) as bar:
-            for k in range(config.iterations):
-                seg = segment_length(config, k)  # type: ignore[arg-type]  # seg_start, seg, curriculum, iterations
-                if segments is None or segments.windows.shape[0] != seg:
-                    segments, best = Segments.of(x, h, seg), None
-                m = segments.windows.shape[1]
-                idx = stratified_sample(m, config.batch, gen) if 0 < config.batch < m else slice(None)
-                w, hb = segments.windows[:, idx], segments.h[idx]                    # (S, B, d), (B, 1)
-                loss = _shooting_loss(module, w, hb, paths, path_step, config.path_samples, config.path_weight)
-                value = float(loss.detach())
-                if not math.isfinite(value):
-                    nonfinite = True
-                    warnings.warn(f"contracting_node: the loss became non-finite at iteration {k}; training "
-                                  "stopped and kept the best iterate (a lower lr may help)", RuntimeWarning,
-                                  stacklevel=3)
-                    break
-                losses.append(value)
-                if best is None or value < best[0]:
-                    best = (value, k, {n: p.detach().clone() for n, p in module.state_dict().items()})
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                bar.update(1)
-                if k % POSTFIX_EVERY == 0:
-                    bar.set_postfix(loss=f"{value:.3g}", seg=seg, refresh=False)
-    except KeyboardInterrupt:
-        interrupted = True
-    if best is not None:
-        module.load_state_dict(best[2])
-    module.eval()
-    return {"loss": losses, "seg": segment_length(config, max(len(losses) - 1, 0)),  # type: ignore[arg-type]
-            "best_loss": best[0] if best else None, "best_iter": best[1] if best else None,
-            "iterations": len(losses), "interrupted": interrupted, "stopped_nonfinite": nonfinite}
+    return shoot_segments(module, x, h, config, _LatentShooter(module, x, h, config), progress, "contracting_node",
+                          "contracting_node")

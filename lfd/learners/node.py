@@ -31,7 +31,7 @@ import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import numpy as np
 import torch
@@ -219,7 +219,28 @@ def uniform_grid(demos: DemoSet, samples: int = 0) -> tuple[np.ndarray, np.ndarr
     return np.stack(xs), np.asarray(hs)
 
 
-def segment_length(config: NodeConfig, k: int) -> int:
+class Schedule(Protocol):
+    """What multiple shooting reads of a learner's config (``NodeConfig``'s names): the iterations,
+    the batch of segments and the segment curriculum."""
+
+    iterations: int
+    batch: int
+    seg: int
+    seg_start: int
+    curriculum: float
+
+
+class Shooter(Protocol):
+    """One learner's loss on a batch of segments and its optimiser step (``shoot_segments``)."""
+
+    def loss(self, w: torch.Tensor, hb: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        """The loss of windows w (S, B, d) with sample steps hb (B, 1) at tau (S,), a scalar."""
+
+    def step(self, loss: torch.Tensor) -> None:
+        """One optimiser step on ``loss``."""
+
+
+def segment_length(config: Schedule, k: int) -> int:
     """S_k = round(seg_start + (seg - seg_start) min(1, k / (curriculum iterations)))."""
     ramp = config.curriculum * config.iterations
     frac = 1.0 if ramp <= 0 else min(1.0, k / ramp)
@@ -286,7 +307,7 @@ class _Shooting:
         self.opt.step()
 
 
-def _batch(segments: Segments, config: NodeConfig, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+def _batch(segments: Segments, config: Schedule, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """The windows (S, B, d) and steps (B, 1) of one iteration: stratified, or all segments."""
     m = segments.windows.shape[1]
     if 0 < config.batch < m:
@@ -300,17 +321,28 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
     """Train ``module`` in place by multiple shooting on uniform-grid demos (see module docstring).
 
     x : tensor, shape (N, T, d), normalised demos; h : tensor, shape (N,), sample steps.
-    Returns the history: ``loss`` (per iteration), ``seg`` (last), ``best_loss``, ``best_iter``,
-    ``iterations`` (done), ``interrupted`` (Ctrl-C) and ``stopped_nonfinite`` (a non-finite loss).
-    Whether training ends, is interrupted or diverges, the module is left at its best iterate
-    among those at the last segment length reached (losses only compare at equal length).
+    Returns ``shoot_segments``' history.
     """
     dtype = DTYPES[config.dtype]
     module.to(dtype).train()
-    x, h = x.to(dtype), h.to(dtype)
-    shooting = _Shooting(module, config)
-    gen = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,)).item()))
+    return shoot_segments(module, x.to(dtype), h.to(dtype), config, _Shooting(module, config), progress, desc,
+                          "node")
 
+
+def shoot_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: Schedule, shooter: Shooter,
+                   progress: bool, desc: str, name: str) -> dict[str, Any]:
+    """The multiple-shooting loop: ``config.iterations`` steps of ``shooter`` on stratified batches of
+    segments whose length follows the curriculum (``segment_length``), one torch thread.
+
+    x : tensor, shape (N, T, d), normalised demos; h : tensor, shape (N,), sample steps (both in the
+    training dtype). Draws its batches from a generator seeded from torch's global one. Returns the
+    history: ``loss`` (per iteration), ``seg`` (last), ``best_loss``, ``best_iter``, ``iterations``
+    (done), ``interrupted`` (Ctrl-C) and ``stopped_nonfinite`` (a non-finite loss, warned of as
+    ``name``). Whether training ends, is interrupted or diverges, the module is left at its best
+    iterate among those at the last segment length reached (losses only compare at equal length),
+    in eval mode.
+    """
+    gen = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,)).item()))
     losses: list[float] = []
     best: tuple[float, int, dict[str, torch.Tensor]] | None = None
     interrupted = nonfinite = False
@@ -322,19 +354,19 @@ def fit_segments(module: nn.Module, x: torch.Tensor, h: torch.Tensor, config: No
                 seg = segment_length(config, k)
                 if segments is None or segments.windows.shape[0] != seg:
                     segments, best = Segments.of(x, h, seg), None
-                    tau = torch.arange(seg, dtype=dtype)
-                loss = shooting.loss(*_batch(segments, config, gen), tau)
+                    tau = torch.arange(seg, dtype=x.dtype)
+                loss = shooter.loss(*_batch(segments, config, gen), tau)
                 value = float(loss.item())
                 if not math.isfinite(value):
                     nonfinite = True
-                    warnings.warn(f"node: the loss became non-finite at iteration {k}; training stopped "
+                    warnings.warn(f"{name}: the loss became non-finite at iteration {k}; training stopped "
                                   "and kept the best iterate (a lower lr may help)",
-                                  RuntimeWarning, stacklevel=2)
+                                  RuntimeWarning, stacklevel=3)
                     break
                 losses.append(value)
                 if best is None or value < best[0]:
                     best = (value, k, {n: p.detach().clone() for n, p in module.state_dict().items()})
-                shooting.step(loss)
+                shooter.step(loss)
                 bar.update(1)
                 if k % POSTFIX_EVERY == 0:
                     bar.set_postfix(loss=f"{value:.3g}", seg=seg, refresh=False)

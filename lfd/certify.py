@@ -42,7 +42,7 @@ from lfd.field import FieldKind, StateSpace, VelocityField, by_kind
 from lfd.pose_contraction import PAIRS, check_pose_contraction
 from lfd.stability import ROUND_OFF, check_lyapunov
 from lfd.threads import torch_threads
-from lfd.transient import structural_conditions, transient_growth
+from lfd.transient import transient_growth
 
 DEFAULT_SAMPLES = 20_000
 DEFAULT_TOLERANCE = 0.0    # extra absolute slack (1/s) on top of the round-off slack Eq. (K2)
@@ -400,9 +400,9 @@ def certify(field: VelocityField, lo: np.ndarray | None = None, hi: np.ndarray |
 
 
 def _check_theorem(field: VelocityField, cert: Certificate, lo: np.ndarray, hi: np.ndarray) -> Certificate:
-    """``cert`` with the structural conditions and the sampled Eq. (18) of a field built as a bounded flow of
-    a contracting latent field (``lfd.transient``); unchanged for any other field."""
-    structural = structural_conditions(field)
+    """``cert`` with the theorem's conditions of a field that states them (``theorem_conditions``) and, where
+    they hold, Eq. (18) sampled (``lfd.transient``); unchanged for any other field."""
+    structural = field.theorem_conditions()
     if structural is None:
         return cert
     if not structural["holds"]:     # the bound is not stated by weights that break the theorem: not sampled

@@ -1,9 +1,10 @@
 """What a learned field states about its own contraction, for ``lfd.certify`` and
 ``lfd.pose_contraction`` to check: ``Guarantees``, the defaults of every ``lfd.field.VelocityField``
 (nothing stated). A learner that states more overrides them: ``lfd.field.ContractingField`` (a rate,
-metric bounds and a Lipschitz bound), the contraction learner's field (its metric, Eq. (C1), and its
-flow in closed form, Eq. (C4)), the NODE's (a bound of Lip(J_f) from its weights) and the stable
-NODE's (a Lyapunov function and its constants, Eqs. (L1)-(L3))."""
+metric bounds and a Lipschitz bound), the contraction learners' fields (their metric, Eq. (C1), the
+theorem's conditions read from the weights, and the goal contraction's flow in closed form, Eq. (C4)),
+the NODE's (a bound of Lip(J_f) from its weights) and the stable NODE's (a Lyapunov function and its
+constants, Eqs. (L1)-(L3))."""
 
 from __future__ import annotations
 
@@ -38,6 +39,11 @@ class Guarantees:
     def contraction_metric(self) -> Callable[[Tensor], Tensor] | None:
         """M_n: x_n (B, d) -> (B, d, d), the metric the field is built to contract in (normalised units,
         differentiable; ``lfd.certify`` checks Eq. (C1) in it); None: none (the identity is checked)."""
+        return None
+
+    def theorem_conditions(self) -> dict[str, Any] | None:
+        """The conditions of the theorem the field is built on, read from its weights (keys ``holds`` and
+        the values checked; ``lfd.certify`` reports them and refuses a field where they fail); None: none."""
         return None
 
     def jacobian_lipschitz_bound(self) -> float | None:

@@ -26,7 +26,7 @@ from lfd.learners.contracting_node import (
     retimed,
 )
 from lfd.learners.contraction import feasible_rate, lipschitz_bound
-from lfd.transient import structural_conditions, transient_growth
+from lfd.transient import transient_growth
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 ITERATIONS = 150
@@ -116,7 +116,7 @@ def test_trained_field_states_its_constants_and_keeps_them(field: ContractingNod
     assert rate == field.rate == field.module.rate and 0.05 <= rate <= 5.0
     lam = field.history["feasible_rate"]
     assert rate == pytest.approx(min(5.0, max(0.05, RATE_FRACTION * lam)))
-    conditions = structural_conditions(field)
+    conditions = field.theorem_conditions()
     assert conditions is not None and conditions["holds"]
     assert conditions["flow_ratio"] <= 10.0 + 1e-9
     lo, hi = field.demo_box
@@ -134,7 +134,7 @@ def test_certify_reports_the_theorem_and_refuses_a_broken_weight(field: Contract
     with torch.no_grad():     # a skew-free A with a positive eigenvalue: no longer -rate I - P
         broken.module.damping.zero_()
         broken.module.rate = -0.5
-    conditions = structural_conditions(broken)
+    conditions = broken.theorem_conditions()
     assert conditions is not None and not conditions["holds"] and conditions["sym_a_max"] == pytest.approx(1.0)
     bad = _check_theorem(broken, replace(cert, structural=None, growth=None), *broken.demo_box)
     assert not bad.certified and "fails in the weights" in bad.proof and "A CONDITION FAILS" in bad.summary()
@@ -179,7 +179,7 @@ def test_poses_train_in_the_chart_and_contract() -> None:
     """A pose task (RoboTasks9) in the chart's R^6: the theorem's conditions and the kernel hold there too."""
     demos = lfd.load_demos("robottasks:pouring")
     f = lfd.train("contracting_node", demos, seed=0, progress=False, iterations=10)
-    assert f.dim == 6 and structural_conditions(f)["holds"]
+    assert f.dim == 6 and f.theorem_conditions()["holds"]
     fast = f.single_point_evaluator()
     z = f.norm.goal + np.random.default_rng(1).normal(size=(10, 6)) * f.norm.scale
     assert np.allclose(np.stack([fast(p) for p in z]), f(z), rtol=1e-9, atol=1e-9)

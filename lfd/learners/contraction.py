@@ -200,6 +200,10 @@ class ContractionModule(nn.Module):
         """The latent field h(y) = A (y - y*) of Eq. (C2), shape (B, d), at y, shape (B, d)."""
         return (y - y_star) @ self.latent_matrix().T
 
+    def ridge_gain(self) -> torch.Tensor:
+        """The gains D of a nonlinear latent term (``lfd.learners.contracting_node``), shape (H,): none here."""
+        return self.skew.new_zeros(0)
+
     def latent_lipschitz(self) -> torch.Tensor:
         """An upper bound of Lip(h) = sup |J_h| on all of R^d (here |A|_2), a scalar tensor."""
         return torch.linalg.matrix_norm(self.latent_matrix(), ord=2)
@@ -299,6 +303,34 @@ class ContractionField(ContractingField):
     def lipschitz_bound(self) -> float:
         """An upper bound of the field's Lipschitz constant on all of R^d, 1/s (Eq. (C6))."""
         return lipschitz_bound(self.module)
+
+    def theorem_conditions(self) -> dict[str, Any]:
+        """The theorem's conditions (docs/equations.md, Eqs. (C1)-(C3) and (N1)-(N2)) read from the weights.
+
+        Returns ``holds``, ``sym_a_max`` (the largest eigenvalue of sym(A) + lambda I at the stated rate,
+        <= 0 needed), ``ridge_min`` (the smallest ridge gain, >= 0 needed; None without a ridge term),
+        ``flow_ratio`` (s_hi / s_lo of the flow) and ``sqrt_kappa`` (the bound it must stay under); for
+        non-finite weights ``holds`` is False and the values NaN.
+        """
+        module = self.module
+        if not all(bool(torch.isfinite(p).all()) for p in module.parameters()):
+            return {"holds": False, "sym_a_max": math.nan, "ridge_min": None, "flow_ratio": math.nan,
+                    "sqrt_kappa": math.nan}
+        with torch.no_grad():
+            a = module.latent_matrix().double()
+            rate = float(self.config["rate"])   # the stated rate, whatever the module was built with
+            sym = (a + a.T) / 2 + rate * torch.eye(a.shape[0], dtype=a.dtype)
+            sym_max = float(torch.linalg.eigvalsh(sym).max())
+            gain = module.ridge_gain()
+            ridge_min = float(gain.min()) if gain.numel() else None
+        s_lo, s_hi = module.flow.singular_value_bounds()
+        kappa = float(self.config.get("max_condition", math.inf))
+        sqrt_kappa = math.sqrt(kappa) if math.isfinite(kappa) else math.inf
+        tol = 1e-12 * max(1.0, float(torch.linalg.matrix_norm(a, ord=2)))
+        holds = (sym_max <= tol and (ridge_min is None or ridge_min >= 0.0)
+                 and math.isfinite(s_hi / s_lo) and s_hi / s_lo <= sqrt_kappa * (1 + 1e-9))
+        return {"holds": bool(holds), "sym_a_max": sym_max, "ridge_min": ridge_min, "flow_ratio": s_hi / s_lo,
+                "sqrt_kappa": sqrt_kappa}
 
     def metric_normalized_torch(self, xn: torch.Tensor) -> torch.Tensor:
         """M_n(x_n) = J_phi' J_phi, shape (B, d, d); differentiable (used by ``lfd.certify``)."""

@@ -32,7 +32,7 @@ from matplotlib.ticker import ScalarFormatter  # noqa: E402
 import lfd  # noqa: E402
 import sim  # noqa: E402
 from lfd.errors import LfdError  # noqa: E402
-from lfd.io import atomic_write, check_writable  # noqa: E402
+from lfd.io import atomic_write, check_writable, write_json  # noqa: E402
 from robots import RobotError  # noqa: E402
 from sim.errors import SimError  # noqa: E402
 from sim.run.parsing import OneLineParser, fail  # noqa: E402
@@ -71,9 +71,7 @@ def _records(fresh: bool) -> dict[str, Any]:
 
 def _record(records: dict[str, Any], key: str, value: Any) -> None:
     records[key] = value
-    path = Path(OUT) / "records.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda f: f.write(json.dumps(records, indent=1).encode()))
+    write_json(Path(OUT) / "records.json", records, indent=1)
 
 
 def _certified(shape: str) -> str:

@@ -162,6 +162,15 @@ def _solve_small(jac: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:  # pr
     out[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
 
 
+@numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+def _ridge_input(rw: np.ndarray, rb: np.ndarray, y: np.ndarray, k: int) -> float:  # pragma: no cover - compiled
+    """(W y + c)_k of Eq. (N1) for ridge unit k: rw (H, d), rb (H,), y (d,)."""
+    z = rb[k]
+    for j in range(y.shape[0]):
+        z += rw[k, j] * y[j]
+    return z
+
+
 @numba.njit(cache=True, fastmath=False, nogil=True)
 def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np.ndarray,
             gen: np.ndarray, w1b: np.ndarray, w2: np.ndarray, inv_r2: float,
@@ -192,10 +201,7 @@ def _kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho2: np
             s += a[i, j] * (y[j] - y_star[j])
         b[i] = s
     for k in range(rw.shape[0]):
-        z_k = rb[k]
-        for j in range(d):
-            z_k += rw[k, j] * y[j]
-        g = rd[k] * (math.tanh(z_k) - rt[k])
+        g = rd[k] * (math.tanh(_ridge_input(rw, rb, y, k)) - rt[k])
         for i in range(d):
             b[i] -= g * rw[k, i]
     _solve_small(jac, b, out)
@@ -222,13 +228,10 @@ def _flow_kernel(x: np.ndarray, centers: np.ndarray, theta: np.ndarray, inv_2rho
 
 @numba.njit(cache=True, fastmath=False, nogil=True)
 def _ridge_at(rw: np.ndarray, rb: np.ndarray, y: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """tanh(W y + c) (H,), summed in the kernel's order, so that h(y*) = 0 to the last bit."""
+    """tanh(W y + c) (H,), by the kernel's own ``_ridge_input``, so that h(y*) = 0 to the last bit."""
     out = np.empty(rw.shape[0])
     for k in range(rw.shape[0]):
-        z_k = rb[k]
-        for j in range(y.shape[0]):
-            z_k += rw[k, j] * y[j]
-        out[k] = math.tanh(z_k)
+        out[k] = math.tanh(_ridge_input(rw, rb, y, k))
     return out
 
 
